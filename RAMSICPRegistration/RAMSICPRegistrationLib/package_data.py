@@ -1,0 +1,39 @@
+"""Real data shipped inside the package (installed with it, so the demo runs after a plain pip install).
+
+* Visible Human Female tibiae (University of Denver, CC BY 4.0; see ``data/licenses``).
+* NDI passive tool marker geometries typed from PLUS Toolkit's ``.rom`` files (BSD-3-Clause).
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+#: Bone meshes by short name: file, side, and the image direction (RAS) that is medial for that side.
+BONES = {
+    "right-tibia": {"file": "VHF_Right_Bone_Tibia_smooth.stl", "medial": (-1.0, 0.0, 0.0)},
+    "left-tibia": {"file": "VHF_Left_Bone_Tibia_smooth.stl", "medial": (1.0, 0.0, 0.0)},
+}
+
+#: NDI reference body used by the demo: passive 4-marker tool 8700339.
+DEFAULT_REFERENCE_TOOL = "8700339"
+
+#: Diameter of NDI passive marker spheres (mm), as in the paper.
+MARKER_DIAMETER_MM = 11.5
+
+
+def bone_mesh_path(name):
+    """Path of a shipped bone mesh (``right-tibia`` or ``left-tibia``); the file's frame is RAS, in mm."""
+    if name not in BONES:
+        raise ValueError(f"bone {name!r}: shipped bones are {', '.join(BONES)}")
+    return DATA_DIR / BONES[name]["file"]
+
+
+def tool_marker_geometry(tool_id=DEFAULT_REFERENCE_TOOL):
+    """Marker centres (K, 3) in mm in the NDI tool's own frame, from ``ndi_passive_tools.json``."""
+    tools = json.loads((DATA_DIR / "ndi_passive_tools.json").read_text(encoding="utf-8"))["tools"]
+    if tool_id not in tools:
+        raise ValueError(f"NDI tool {tool_id!r}: known tools are {', '.join(tools)}")
+    return np.array(tools[tool_id]["markers"], dtype=np.float64)

@@ -1,0 +1,224 @@
+"""Point sets on disk: Slicer markups JSON (``.mrk.json``), ``.fcsv``, ``.csv``/``.txt`` and ``.npy``.
+
+Inside the program every point is RAS (Slicer's world frame). Files that state their frame (markups JSON's
+``coordinateSystem``, the ``.fcsv`` header, a ``# SPACE=LPS`` comment in a text file) are converted on reading;
+files that cannot state it (``.npy``, text files without the comment) are taken to be in ``untagged_space``
+(RAS unless told). Markups are written in LPS, as Slicer writes them; text files carry a ``# SPACE=RAS`` line.
+"""
+
+import csv
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .validation import as_points
+
+SPACES = ("RAS", "LPS")
+_RAS_FROM_LPS = np.array([-1.0, -1.0, 1.0])
+MARKUPS_SCHEMA = (
+    "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/"
+    "markups-schema-v1.0.3.json#")
+POINT_SUFFIXES = (".mrk.json", ".json", ".fcsv", ".csv", ".txt", ".npy")
+
+
+class PointFileError(ValueError):
+    """A point or surface file that cannot be read or written; the message names the file and the problem."""
+
+    def __init__(self, path, problem):
+        super().__init__(f"{path}: {problem}")
+        self.path = str(path)
+        self.problem = problem
+
+
+@dataclass(frozen=True)
+class PointSet:
+    """Points read from a file: ``points`` (N, 3) RAS mm, one label per point (may be empty strings)."""
+
+    points: np.ndarray
+    labels: tuple = field(default=())
+
+    def __len__(self):
+        return len(self.points)
+
+
+def to_ras(points, space):
+    """Convert (N, 3) points given in ``space`` ('RAS' or 'LPS') to RAS. The conversion is its own inverse."""
+    space = _check_space(space)
+    return points * _RAS_FROM_LPS if space == "LPS" else points.copy()
+
+
+def read_points(path, untagged_space="RAS"):
+    """Read a point set, returning a PointSet in RAS.
+
+    Raises:
+        PointFileError: the file is missing, of an unknown type, malformed, or holds no points.
+    """
+    path = Path(path)
+    untagged_space = _check_space(untagged_space)
+    if not path.is_file():
+        raise PointFileError(path, "no such file")
+    suffix = _suffix(path)
+    readers = {".mrk.json": _read_markups_json, ".json": _read_markups_json, ".fcsv": _read_fcsv,
+               ".csv": _read_text, ".txt": _read_text, ".npy": _read_npy}
+    if suffix not in readers:
+        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
+    try:
+        points, labels, space = readers[suffix](path)
+    except PointFileError:
+        raise
+    except (OSError, UnicodeDecodeError) as error:
+        raise PointFileError(path, f"cannot read ({error})") from None
+    if space is None:
+        space = untagged_space
+    try:
+        points = as_points(points, "points", min_count=1)
+    except ValueError as error:
+        raise PointFileError(path, str(error)) from None
+    labels = tuple(labels) if labels else ("",) * len(points)
+    return PointSet(points=to_ras(points, space), labels=labels)
+
+
+def write_points(path, points, labels=None):
+    """Write (N, 3) RAS points to ``path``; the file type follows the suffix (LPS for markups, as Slicer)."""
+    path = Path(path)
+    points = as_points(points, "points", min_count=0)
+    labels = list(labels) if labels is not None else [f"F-{i + 1}" for i in range(len(points))]
+    if len(labels) != len(points):
+        raise ValueError(f"labels: {len(labels)} given for {len(points)} points")
+    suffix = _suffix(path)
+    if suffix in (".mrk.json", ".json"):
+        _write_markups_json(path, points, labels)
+    elif suffix == ".fcsv":
+        _write_fcsv(path, points, labels)
+    elif suffix in (".csv", ".txt"):
+        delimiter = "," if suffix == ".csv" else " "
+        header = "# SPACE=RAS units=mm x y z"
+        np.savetxt(path, points, fmt="%.9g", delimiter=delimiter, header=header[2:], comments="# ")
+    elif suffix == ".npy":
+        np.save(path, points)
+    else:
+        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
+
+
+def _suffix(path):
+    name = path.name.lower()
+    return ".mrk.json" if name.endswith(".mrk.json") else path.suffix.lower()
+
+
+def _check_space(space):
+    space = str(space).upper()
+    if space not in SPACES:
+        raise ValueError(f"coordinate space {space!r}: use 'RAS' or 'LPS'")
+    return space
+
+
+def _read_markups_json(path):
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as error:
+        raise PointFileError(path, f"not valid JSON ({error.msg} at line {error.lineno})") from None
+    markups = document.get("markups") if isinstance(document, dict) else None
+    if not markups or not isinstance(markups, list):
+        raise PointFileError(path, "no 'markups' list; expected a Slicer markups JSON file (.mrk.json)")
+    markup = markups[0]
+    space = str(markup.get("coordinateSystem", "LPS")).upper()
+    if space not in SPACES:
+        raise PointFileError(path, f"coordinateSystem {space!r} is neither LPS nor RAS")
+    points, labels = [], []
+    for number, control_point in enumerate(markup.get("controlPoints", [])):
+        if control_point.get("positionStatus", "defined") != "defined":
+            continue
+        position = control_point.get("position")
+        if not isinstance(position, list) or len(position) != 3:
+            raise PointFileError(path, f"control point {number} has no 3-number 'position'")
+        points.append(position)
+        labels.append(str(control_point.get("label", "")))
+    if not points:
+        raise PointFileError(path, "holds no defined control points")
+    return points, labels, space
+
+
+def _write_markups_json(path, points, labels):
+    lps = to_ras(points, "LPS")
+    control_points = [
+        {"id": str(i + 1), "label": label, "position": [float(v) for v in point], "positionStatus": "defined"}
+        for i, (label, point) in enumerate(zip(labels, lps))]
+    document = {"@schema": MARKUPS_SCHEMA, "markups": [
+        {"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm", "controlPoints": control_points}]}
+    path.write_text(json.dumps(document, indent=2), encoding="utf-8")
+
+
+def _read_fcsv(path):
+    space, columns, points, labels = None, None, [], []
+    with path.open(newline="", encoding="utf-8") as stream:
+        for line_number, row in enumerate(csv.reader(stream), start=1):
+            if not row or not "".join(row).strip():
+                continue
+            if row[0].startswith("#"):
+                text = ",".join(row)
+                match = re.match(r"#\s*CoordinateSystem\s*=\s*(\w+)", text)
+                if match:
+                    space = {"0": "RAS", "1": "LPS", "RAS": "RAS", "LPS": "LPS"}.get(match.group(1).upper())
+                    if space is None:
+                        raise PointFileError(path, f"line {line_number}: unknown CoordinateSystem {match.group(1)}")
+                if text.lstrip("# ").lower().startswith("columns"):
+                    columns = [name.strip() for name in text.split("=", 1)[1].split(",")]
+                continue
+            names = columns or ["id", "x", "y", "z", "ow", "ox", "oy", "oz", "vis", "sel", "lock", "label"]
+            try:
+                record = dict(zip(names, row))
+                points.append([float(record["x"]), float(record["y"]), float(record["z"])])
+            except (KeyError, ValueError):
+                raise PointFileError(path, f"line {line_number}: expected id,x,y,z,... got {','.join(row)!r}") from None
+            labels.append(record.get("label", ""))
+    if not points:
+        raise PointFileError(path, "holds no points")
+    # Slicer's fcsv files without a CoordinateSystem line (before 4.11) are RAS.
+    return points, labels, space or "RAS"
+
+
+def _write_fcsv(path, points, labels):
+    lps = to_ras(points, "LPS")
+    lines = ["# Markups fiducial file version = 4.11", "# CoordinateSystem = LPS",
+             "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID"]
+    for i, (label, (x, y, z)) in enumerate(zip(labels, lps)):
+        lines.append(f"{i + 1},{x:.9g},{y:.9g},{z:.9g},0,0,0,1,1,1,0,{label},,")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _read_text(path):
+    space, points = None, []
+    for line_number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            match = re.search(r"SPACE\s*=\s*(RAS|LPS)", stripped, re.IGNORECASE)
+            space = match.group(1).upper() if match else space
+            continue
+        fields = [value for value in re.split(r"[,;\s]+", stripped) if value]
+        try:
+            values = [float(value) for value in fields]
+        except ValueError:
+            if not points and all(re.fullmatch(r"[A-Za-z_ ]+", value) for value in fields):
+                continue  # a column header such as "x,y,z"
+            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {stripped!r}") from None
+        if len(values) != 3:
+            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {len(values)}")
+        points.append(values)
+    if not points:
+        raise PointFileError(path, "holds no points (expected one 'x y z' line per point)")
+    return points, None, space
+
+
+def _read_npy(path):
+    try:
+        points = np.load(path, allow_pickle=False)
+    except ValueError as error:
+        raise PointFileError(path, f"not a numpy array file ({error})") from None
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise PointFileError(path, f"expected an (N, 3) array, got shape {points.shape}")
+    return points, None, None

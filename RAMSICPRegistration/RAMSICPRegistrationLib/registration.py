@@ -1,0 +1,233 @@
+"""The whole registration of the paper: CR, then optionally ICP or RAMSICP, with its errors and warnings.
+
+``register`` is the one entry point the command line, the Slicer logic and the experiments call.
+"""
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constraint import analyse_pose_constraint, bone_long_axis
+from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
+from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
+from .paired_point import fit_rigid_transform
+from .surface_index import SurfaceIndex
+from .sweep import PAPER_SCALES, sweep_scales
+from .transforms import apply_transform
+from .validation import as_points, check_not_collinear
+
+logger = logging.getLogger(__name__)
+
+METHODS = ("cr", "cr-icp", "cr-ramsicp")
+
+#: How L is chosen from a sweep.
+#: ``targets``: the paper's choice, the L of minimum TRE (needs targets: evaluation only).
+#: ``fixed``: ``DEFAULT_SCALE`` (or the given one) from the sweep.
+#: ``rms-plateau``: target-free, the smallest L whose RMS objective is within ``PLATEAU_TOLERANCE`` of the
+#: sweep's lowest: the tightest matching ranges that fit the probe points as well as the widest.
+POLICIES = ("targets", "fixed", "rms-plateau")
+
+#: Default L, from the demo phantoms (see README, "Choosing L"): the mean TRE falls with L up to 5 there.
+DEFAULT_SCALE = 5.0
+PLATEAU_TOLERANCE = 0.005
+
+#: Marker fit (FRE) above which the marker centres are probably misplaced or paired in the wrong order (mm).
+MARKER_FRE_LIMIT_MM = 2.0
+#: A registered probe point farther than this from the surface (mm) and 3x the median is reported.
+OUTLIER_LIMIT_MM = 1.0
+
+
+@dataclass(frozen=True)
+class RegistrationResult:
+    """A registration and everything measured about it. Distances in mm, transforms (4, 4).
+
+    ``reference_to_image`` is the paper's ^P_I T (eq. 10); ``coarse_reference_to_image`` the CR alone (eq. 5).
+    ``residuals_mm`` are the distances of the registered probe points to the IPC, ``ppc_rms_mm`` their RMS.
+    ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets; ``predicted_cr_tre_mm`` is the
+    Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm``.
+    """
+
+    method: str
+    reference_to_image: np.ndarray
+    coarse_reference_to_image: np.ndarray
+    fre_mm: float
+    marker_residuals_mm: np.ndarray
+    ppc_rms_mm: float
+    residuals_mm: np.ndarray
+    tre_mm: float = None
+    target_errors_mm: np.ndarray = None
+    predicted_cr_tre_mm: np.ndarray = None
+    fle_mm: float = None
+    scale: float = None
+    scale_policy: str = None
+    iterations: int = None
+    converged: bool = None
+    sweep: tuple = ()
+    warnings: tuple = ()
+
+    def to_dict(self):
+        """JSON-ready dictionary with every figure of the result."""
+        def listed(value):
+            return None if value is None else np.asarray(value).tolist()
+
+        return {
+            "method": self.method,
+            "reference_to_image": listed(self.reference_to_image),
+            "coarse_reference_to_image": listed(self.coarse_reference_to_image),
+            "fre_mm": self.fre_mm,
+            "marker_residuals_mm": listed(self.marker_residuals_mm),
+            "ppc_rms_mm": self.ppc_rms_mm,
+            "residuals_mm": listed(self.residuals_mm),
+            "tre_mm": self.tre_mm,
+            "target_errors_mm": listed(self.target_errors_mm),
+            "predicted_cr_tre_mm": listed(self.predicted_cr_tre_mm),
+            "fle_mm": self.fle_mm,
+            "scale": self.scale,
+            "scale_policy": self.scale_policy,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "sweep": [entry.to_dict() for entry in self.sweep],
+            "warnings": list(self.warnings),
+        }
+
+
+def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targets_patient=None,
+             method="cr-ramsicp", scale=None, sweep=False, scales=PAPER_SCALES, policy=None, fle_mm=None,
+             min_radius_mm=DEFAULT_MIN_RADIUS_MM):
+    """Register the patient (reference frame) to the image: CR, CR-ICP or CR-RAMSICP.
+
+    Args:
+        ipc: SurfaceIndex, or (M, 3) IPC points in image coordinates (mm).
+        ppc: (N, 3) probe points in reference coordinates (mm), N >= 3, not collinear.
+        markers_image: (K, 3) marker-sphere centres in the image (mm), K >= 3.
+        markers_patient: (K, 3) the same centres in reference coordinates, same order.
+        targets_image, targets_patient: optional (T, 3) targets for the TRE (eq. 11).
+        method: 'cr', 'cr-icp' or 'cr-ramsicp'.
+        scale: L for a single RAMSICP run (default ``DEFAULT_SCALE``); with ``sweep`` it is the 'fixed' L.
+        sweep: run RAMSICP for every L in ``scales`` and choose one by ``policy``.
+        policy: one of POLICIES; default 'targets' when targets are given, else 'rms-plateau'.
+        fle_mm: marker localisation error for the predicted TRE; estimated from the FRE when None.
+
+    Raises:
+        ValueError: bad points (see ``fit_rigid_transform``), unknown method or policy, a policy that needs
+            targets without them, sweep or scale with a method other than cr-ramsicp.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method {method!r}: use one of {', '.join(METHODS)}")
+    if method != "cr-ramsicp" and (sweep or scale is not None):
+        raise ValueError(f"scale and sweep apply to cr-ramsicp only, not to {method}")
+    index = ipc if isinstance(ipc, SurfaceIndex) else SurfaceIndex(ipc)
+    ppc = as_points(ppc, "PPC (probe points)", min_count=3)
+    check_not_collinear(ppc, "PPC (probe points)")
+    targets_patient, targets_image = _check_targets(targets_patient, targets_image)
+    coarse = fit_rigid_transform(markers_patient, markers_image, source_name="markers in the patient (reference)",
+                                 target_name="markers in the image")
+    warnings = _marker_warnings(coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
+
+    transform, fine, entries, chosen_policy = coarse.transform, None, (), None
+    if method == "cr-icp":
+        fine = icp(index, ppc, coarse.transform)
+    elif method == "cr-ramsicp":
+        if sweep:
+            chosen_policy = policy or ("targets" if targets_patient is not None else "rms-plateau")
+            entries = sweep_scales(index, ppc, coarse.transform, scales, targets_patient, targets_image,
+                                   min_radius_mm=min_radius_mm)
+            chosen = entries[select_scale(entries, chosen_policy, DEFAULT_SCALE if scale is None else scale)]
+            fine = chosen.result
+            warnings += _sweep_warnings(entries, chosen, chosen_policy)
+        else:
+            if policy not in (None, "fixed"):
+                raise ValueError(f"policy {policy!r} chooses L from a sweep; ask for the sweep, or give a scale")
+            chosen_policy = "fixed"
+            fine = ramsicp(index, ppc, coarse.transform, DEFAULT_SCALE if scale is None else float(scale),
+                           min_radius_mm=min_radius_mm)
+    if fine is not None:
+        transform = fine.transform
+        if not fine.converged:
+            warnings.append(f"{method} stopped after {fine.iterations} iterations before the RMS settled "
+                            "(change above 1e-5 mm); the result may still move: check the CR and the probe points")
+
+    residuals = surface_residuals(index, transform, ppc)
+    warnings += _outlier_warnings(residuals)
+    registered = apply_transform(transform, ppc)
+    _, matches = index.nearest(registered)
+    report = analyse_pose_constraint(registered, index.normals(matches), long_axis=bone_long_axis(index.points))
+    if report.warning:
+        warnings.append(report.warning)
+
+    fle = fle_mm if fle_mm is not None else fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
+    tre = errors = predicted = None
+    if targets_patient is not None:
+        errors = target_errors(transform, targets_patient, targets_image)
+        tre = float(np.sqrt(np.mean(errors**2)))
+        predicted = predicted_tre(np.asarray(markers_image, float), targets_image, fle)
+    for warning in warnings:
+        logger.info("registration warning: %s", warning)
+    return RegistrationResult(
+        method=method, reference_to_image=transform, coarse_reference_to_image=coarse.transform,
+        fre_mm=coarse.fre_mm, marker_residuals_mm=coarse.residuals_mm, ppc_rms_mm=float(np.sqrt(np.mean(residuals**2))),
+        residuals_mm=residuals, tre_mm=tre, target_errors_mm=errors, predicted_cr_tre_mm=predicted,
+        fle_mm=float(fle), scale=None if fine is None else fine.scale, scale_policy=chosen_policy,
+        iterations=None if fine is None else fine.iterations, converged=None if fine is None else fine.converged,
+        sweep=entries, warnings=tuple(warnings))
+
+
+def select_scale(entries, policy, fixed_scale=DEFAULT_SCALE):
+    """Index of the chosen entry of a sweep (a tuple of SweepEntry) under ``policy`` (see POLICIES)."""
+    if policy == "targets":
+        if entries[0].tre_mm is None:
+            raise ValueError("policy 'targets' picks the L of minimum TRE and needs target points; "
+                             "give targets or use 'rms-plateau' or 'fixed'")
+        return int(np.argmin([entry.tre_mm for entry in entries]))
+    if policy == "fixed":
+        return int(np.argmin([abs(entry.scale - fixed_scale) for entry in entries]))
+    if policy == "rms-plateau":
+        rms = np.array([entry.result.rms_mm for entry in entries])
+        return int(np.flatnonzero(rms <= rms.min() * (1.0 + PLATEAU_TOLERANCE))[0])
+    raise ValueError(f"policy {policy!r}: use one of {', '.join(POLICIES)}")
+
+
+def _check_targets(targets_patient, targets_image):
+    if (targets_patient is None) != (targets_image is None):
+        raise ValueError("targets: give them in both frames (image and patient) or in neither")
+    if targets_patient is None:
+        return None, None
+    targets_patient = as_points(targets_patient, "targets in the patient (reference)", min_count=1)
+    targets_image = as_points(targets_image, "targets in the image", min_count=1)
+    if targets_patient.shape != targets_image.shape:
+        raise ValueError(f"targets: {len(targets_patient)} in the patient but {len(targets_image)} in the image; "
+                         "give the same targets in the same order")
+    return targets_patient, targets_image
+
+
+def _marker_warnings(coarse, markers_patient, markers_image):
+    if coarse.fre_mm <= MARKER_FRE_LIMIT_MM:
+        return []
+    worst = int(np.argmax(coarse.residuals_mm))
+    spacing_patient = np.linalg.norm(markers_patient[:, None] - markers_patient[None], axis=2)
+    spacing_image = np.linalg.norm(markers_image[:, None] - markers_image[None], axis=2)
+    mismatch = np.abs(spacing_patient - spacing_image).max()
+    return [f"Marker fit is poor: FRE {coarse.fre_mm:.2f} mm (marker {worst} is off by "
+            f"{coarse.residuals_mm[worst]:.2f} mm; inter-marker distances differ by up to {mismatch:.1f} mm). "
+            "Check that the image markers are in the same order as the tool's and centred on the spheres."]
+
+
+def _outlier_warnings(residuals):
+    limit = max(OUTLIER_LIMIT_MM, 3.0 * float(np.median(residuals)))
+    far = np.flatnonzero(residuals > limit)
+    if not far.size:
+        return []
+    listed = ", ".join(f"{i} ({residuals[i]:.2f} mm)" for i in far[:10])
+    return [f"{far.size} probe point(s) lie far from the bone surface after registration: {listed}. "
+            "Exclude them if they were not touched on bone, and register again."]
+
+
+def _sweep_warnings(entries, chosen, policy):
+    warnings = []
+    if policy == "targets":
+        warnings.append("L was chosen by the minimum TRE over the sweep (the paper's choice): that uses the target "
+                        "points and is for evaluation; in surgery use the 'fixed' or 'rms-plateau' policy")
+    if chosen.scale == entries[-1].scale and len(entries) > 1 and policy != "fixed":
+        warnings.append(f"the chosen L = {chosen.scale:g} is the largest of the sweep; the result is close to plain ICP")
+    return warnings

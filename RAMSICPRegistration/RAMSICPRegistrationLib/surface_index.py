@@ -1,0 +1,48 @@
+"""The image point cloud (IPC) with its KD-tree, built once and shared by every method and every scale L."""
+
+import logging
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .validation import as_points
+
+logger = logging.getLogger(__name__)
+
+#: Neighbours used to estimate a surface normal at an IPC point (principal component analysis).
+NORMAL_NEIGHBOURS = 16
+
+
+class SurfaceIndex:
+    """The IPC ``Y`` of the paper: (M, 3) surface points in image coordinates (mm) and their KD-tree.
+
+    Building the tree is the one expensive step (about 0.05 s for 200,000 points); build one ``SurfaceIndex``
+    per IPC and pass it to every registration, every method and every L of a sweep.
+    """
+
+    def __init__(self, points, name="IPC"):
+        self.points = as_points(points, name, min_count=3)
+        # An unbalanced tree without compacted nodes builds about twice as fast and answers as fast here.
+        self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+        logger.debug("KD-tree built over %d IPC points", len(self.points))
+
+    def __len__(self):
+        return len(self.points)
+
+    def nearest(self, query):
+        """Closest IPC point to each (N, 3) query point: returns distances (N,) in mm and indices (N,)."""
+        distances, indices = self.tree.query(query)
+        return distances, indices
+
+    def normals(self, indices):
+        """Unit surface normals (N, 3) at IPC points ``indices``, by PCA of their nearest neighbours.
+
+        The sign of each normal is arbitrary; only the line it spans is meaningful.
+        """
+        neighbour_count = min(NORMAL_NEIGHBOURS, len(self.points))
+        _, neighbours = self.tree.query(self.points[indices], k=neighbour_count)
+        patches = self.points[neighbours]
+        centred = patches - patches.mean(axis=1, keepdims=True)
+        covariances = np.einsum("nki,nkj->nij", centred, centred)
+        _, eigenvectors = np.linalg.eigh(covariances)
+        return eigenvectors[:, :, 0]

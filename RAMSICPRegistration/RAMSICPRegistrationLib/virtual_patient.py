@@ -1,0 +1,190 @@
+"""A virtual patient built from a real bone mesh, for the demo and the tests.
+
+It follows the paper's set-up ("Data acquisition", "Experimental preparation") on a tibia instead of an ilium:
+
+* image side: the IPC, ``ipc_points`` surface samples of the bone in image (RAS) coordinates, and the 4
+  marker-sphere centres of an NDI reference body fixed beside the bone on a bracket;
+* patient side: the reference frame of that body, related to the image by a known ``reference_to_image``;
+* 8 probe sub-areas SA1-SA8 (4 levels x 2 columns) on the smooth medial face of the proximal shaft, below a
+  planned high tibial osteotomy; 5 points are touched in each;
+* 4 target points: the medial, lateral, anterior and posterior ends of the osteotomy cut.
+
+The image side comes from the mesh here; a later CT-phantom source replaces ``VirtualPatient.from_mesh`` and
+keeps ``simulate_trial``.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .metrics import target_registration_error
+from .paired_point import rigid_procrustes
+from .transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+
+PAPER_IPC_POINTS = 194_568
+
+
+@dataclass(frozen=True)
+class TrialData:
+    """One simulated acquisition. Patient-side arrays are in reference coordinates, image-side in RAS (mm)."""
+
+    ppc: np.ndarray  # (N, 3) probe points
+    sub_area: np.ndarray  # (N,) sub-area number 1..8 of each probe point
+    markers_patient: np.ndarray  # (4, 3) marker centres from the tool geometry (tracked)
+    markers_image: np.ndarray  # (4, 3) marker centres placed in the image, with placement error
+    targets_patient: np.ndarray  # (4, 3) targets touched with the probe (mean of 10 touches)
+    targets_image: np.ndarray  # (4, 3) targets in the image
+
+
+@dataclass(frozen=True)
+class VirtualPatient:
+    """Ground truth of a virtual patient; see the module docstring."""
+
+    ipc: np.ndarray
+    reference_to_image: np.ndarray
+    markers_reference: np.ndarray
+    targets_image: np.ndarray
+    sub_area_points: tuple  # 8 arrays (K_j, 3): true surface points of each sub-area, image coordinates
+    cut_height_mm: float
+
+    @classmethod
+    def from_mesh(cls, vertices, triangles, markers_reference, medial_direction, seed=0,
+                  ipc_points=200_000, cut_below_top_mm=40.0, bracket_offset_mm=(75.0, 45.0)):
+        """Build the virtual patient from a closed bone mesh (RAS mm, +z superior).
+
+        Args:
+            vertices, triangles: the mesh, (V, 3) and (K, 3).
+            markers_reference: (4, 3) marker centres of the reference body in its own frame (mm).
+            medial_direction: (3,) RAS direction that is medial for this bone (-x for a right tibia).
+            seed: fixes the IPC sampling and so the whole patient.
+            ipc_points: IPC size; the paper's IPC has 194,568 points.
+            cut_below_top_mm: height of the osteotomy cut below the top of the tibial plateau.
+            bracket_offset_mm: (lateral, anterior) offset of the reference body from the shaft axis.
+        """
+        rng = np.random.default_rng(seed)
+        ipc, _ = sample_surface(vertices, triangles, ipc_points, rng)
+        dense, dense_normals = sample_surface(vertices, triangles, 400_000, rng)
+        medial = np.asarray(medial_direction, dtype=np.float64)
+        anterior = np.array([0.0, 1.0, 0.0])
+        cut_height = vertices[:, 2].max() - cut_below_top_mm
+        targets = _cut_end_points(ipc, cut_height, medial, anterior)
+        sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, medial, anterior)
+        shaft_centre = _section_centre(ipc, cut_height - 60.0)
+        reference_to_image = _reference_body_pose(markers_reference, shaft_centre, -medial, anterior,
+                                                  bracket_offset_mm)
+        return cls(ipc=ipc, reference_to_image=reference_to_image, markers_reference=markers_reference,
+                   targets_image=targets, sub_area_points=sub_areas, cut_height_mm=float(cut_height))
+
+    @property
+    def markers_image(self):
+        """True marker centres in image coordinates, (4, 3) mm."""
+        return apply_transform(self.reference_to_image, self.markers_reference)
+
+    def marker_fle_for_cr_tre(self, cr_tre_mm, seed=0, trials=2000):
+        """Marker placement error (RMS, mm) that gives a mean CR TRE (eq. 11) of ``cr_tre_mm`` at the targets.
+
+        The CR's TRE grows in proportion to the marker error, so one Monte Carlo run at 1 mm (``trials`` CR
+        fits, deterministic under ``seed``) gives the factor.
+        """
+        rng = np.random.default_rng(seed)
+        true_markers = self.markers_image
+        targets_reference = apply_transform(invert_transform(self.reference_to_image), self.targets_image)
+        tre_per_mm = np.empty(trials)
+        for trial in range(trials):
+            placed = true_markers + _isotropic_noise(rng, true_markers.shape, 1.0)
+            coarse = rigid_procrustes(self.markers_reference, placed)
+            tre_per_mm[trial] = target_registration_error(coarse, targets_reference, self.targets_image)
+        return float(cr_tre_mm / tre_per_mm.mean())
+
+    def simulate_trial(self, rng, marker_fle_mm, probe_noise_mm=0.25, points_per_area=5, sub_areas=None,
+                       target_touches=10):
+        """Simulate one registration's acquisitions.
+
+        Args:
+            rng: numpy Generator.
+            marker_fle_mm: RMS 3-D error of each marker centre placed in the image (the paper's manual placement).
+            probe_noise_mm: RMS 3-D error of a probe-tip touch.
+            points_per_area: probe points touched in each sub-area (the paper: 5).
+            sub_areas: sub-area numbers (1..8) to touch; all 8 by default.
+            target_touches: each patient-side target is the mean of this many touches (the paper: 10).
+        """
+        sub_areas = tuple(range(1, 9)) if sub_areas is None else tuple(sub_areas)
+        image_to_reference = invert_transform(self.reference_to_image)
+        touched, labels = [], []
+        for area in sub_areas:
+            candidates = self.sub_area_points[area - 1]
+            chosen = candidates[rng.choice(len(candidates), size=points_per_area, replace=False)]
+            touched.append(chosen)
+            labels.extend([area] * points_per_area)
+        ppc = apply_transform(image_to_reference, np.vstack(touched))
+        ppc = ppc + _isotropic_noise(rng, ppc.shape, probe_noise_mm)
+        markers_image = self.markers_image + _isotropic_noise(rng, (4, 3), marker_fle_mm)
+        targets_patient = apply_transform(image_to_reference, self.targets_image)
+        targets_patient = targets_patient + _isotropic_noise(rng, (4, 3), probe_noise_mm / np.sqrt(target_touches))
+        return TrialData(ppc=ppc, sub_area=np.array(labels), markers_patient=self.markers_reference.copy(),
+                         markers_image=markers_image, targets_patient=targets_patient,
+                         targets_image=self.targets_image.copy())
+
+
+def sample_surface(vertices, triangles, count, rng):
+    """``count`` points uniformly distributed over a triangle mesh's area, with outward face normals.
+
+    Returns:
+        points (count, 3) and unit normals (count, 3); normals point outward for a mesh with positive volume.
+    """
+    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+    cross = np.cross(b - a, c - a)
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    faces = rng.choice(len(triangles), size=count, p=areas / areas.sum())
+    u, v = rng.random(count), rng.random(count)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    points = a[faces] + u[:, None] * (b - a)[faces] + v[:, None] * (c - a)[faces]
+    normals = cross[faces] / (2.0 * areas[faces])[:, None]
+    return points, normals
+
+
+def _isotropic_noise(rng, shape, rms_mm):
+    """Gaussian noise whose 3-D RMS magnitude is ``rms_mm`` (per-axis sigma = rms / sqrt(3))."""
+    return rng.normal(scale=rms_mm / np.sqrt(3.0), size=shape)
+
+
+def _section_centre(points, height, half_thickness=1.0):
+    section = points[np.abs(points[:, 2] - height) < half_thickness]
+    return section.mean(axis=0)
+
+
+def _cut_end_points(ipc, height, medial, anterior):
+    """The medial, lateral, anterior and posterior ends of the bone's cross-section at ``height``."""
+    section = ipc[np.abs(ipc[:, 2] - height) < 0.3]
+    ends = [section[np.argmax(section @ direction)] for direction in (medial, -medial, anterior, -anterior)]
+    return np.array(ends)
+
+
+def _medial_face_sub_areas(points, normals, cut_height, medial, anterior, radius_mm=6.0):
+    """8 patches of true surface points on the medial face: 4 levels below the cut x 2 columns."""
+    face_normal = (medial + anterior) / np.linalg.norm(medial + anterior)
+    up = np.array([0.0, 0.0, 1.0])
+    areas = []
+    for level in cut_height - np.array([20.0, 40.0, 60.0, 80.0]):
+        band = np.abs(points[:, 2] - level) < 1.0
+        for angle in (np.radians(20.0), np.radians(-20.0)):
+            direction = rotation_about_axis(up, angle) @ face_normal
+            score = np.where(band, normals @ direction, -np.inf)
+            centre = points[np.argmax(score)]
+            patch = np.linalg.norm(points - centre, axis=1) < radius_mm
+            areas.append(points[patch & (normals @ direction > 0.5)])
+    return tuple(areas)
+
+
+def _reference_body_pose(markers, shaft_centre, lateral, anterior, offset_mm):
+    """ReferenceToImage of a reference body on a bracket lateral-anterior of the shaft, facing anterior.
+
+    The tool's marker plane normal (+x of NDI passive tools) faces anterior, towards the camera, turned
+    20 degrees about the bone's axis; its long axis (+z) runs along the bone.
+    """
+    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(20.0)) @ anterior
+    z_axis = np.array([0.0, 0.0, 1.0])
+    rotation = np.column_stack((x_axis, np.cross(z_axis, x_axis), z_axis))
+    centre = shaft_centre + offset_mm[0] * lateral + offset_mm[1] * anterior
+    return make_transform(rotation, centre - rotation @ markers.mean(axis=0))
