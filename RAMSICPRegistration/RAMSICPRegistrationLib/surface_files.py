@@ -6,6 +6,7 @@ STL), a PLY or OBJ comment, or a ``SPACE`` string in a VTP's field data. Untagge
 tag, as Slicer writes them.
 """
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,8 @@ def read_surface_mesh(path, untagged_space="RAS"):
     reader, header_of = _reader(suffix)
     errors = _collect_errors(reader)
     reader.SetFileName(str(path))
-    reader.Update()
+    with _vtk_console_silenced():
+        reader.Update()
     mesh = reader.GetOutput()
     if errors or mesh is None or mesh.GetNumberOfPoints() == 0:
         detail = errors[0].strip().splitlines()[-1] if errors else "no points in it"
@@ -108,7 +110,9 @@ def write_surface(path, vertices, triangles=None):
     errors = _collect_errors(writer)
     writer.SetFileName(str(path))
     writer.SetInputData(mesh)
-    if not writer.Write() or errors:
+    with _vtk_console_silenced():
+        written = writer.Write()
+    if not written or errors:
         raise PointFileError(path, f"cannot write ({errors[0].strip() if errors else 'writer failed'})")
     if suffix == ".obj":
         # vtkOBJWriter writes no header comment; put the tag where Slicer's reader looks for it.
@@ -183,3 +187,19 @@ def _collect_errors(algorithm):
 
     algorithm.AddObserver("ErrorEvent", on_error)
     return errors
+
+
+@contextmanager
+def _vtk_console_silenced():
+    """Keep VTK's pipeline chatter about a bad file off the console; the error itself reaches the caller."""
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+    previous_window = vtkOutputWindow.GetInstance()
+    previous_verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkOutputWindow.SetInstance(vtkStringOutputWindow())
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    try:
+        yield
+    finally:
+        vtkLogger.SetStderrVerbosity(previous_verbosity)
+        vtkOutputWindow.SetInstance(previous_window)

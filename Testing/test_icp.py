@@ -1,0 +1,126 @@
+"""ICP and RAMSICP: known poses recovered on an analytic surface, the ranges of eqs. 6-8, and L = 1."""
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.icp import MatchingRanges, icp, ramsicp
+from RAMSICPRegistrationLib.paired_point import rigid_procrustes
+from RAMSICPRegistrationLib.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+
+from conftest import ellipsoid_points
+
+TRUE_POSE = make_transform(rotation_about_axis((1.0, 2.0, 3.0), np.radians(35.0)), (12.0, -7.0, 30.0))
+CR_ERROR = make_transform(rotation_about_axis((0.3, -1.0, 0.5), np.radians(1.0)), (0.4, -0.3, 0.25))
+
+
+@pytest.fixture(scope="module")
+def ellipsoid():
+    points = ellipsoid_points(60_000)
+    return points, SurfaceIndex(points)
+
+
+def _patient_points(points, count, seed=1):
+    """Probe points that are IPC points (so the true pose leaves zero residual), in reference coordinates."""
+    chosen = points[np.random.default_rng(seed).choice(len(points), count, replace=False)]
+    return apply_transform(invert_transform(TRUE_POSE), chosen)
+
+
+def _pose_error_mm(transform, points):
+    return float(np.max(np.linalg.norm(apply_transform(transform, points) - apply_transform(TRUE_POSE, points), axis=1)))
+
+
+def test_icp_recovers_known_pose_from_perturbed_start(ellipsoid):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 60)
+    result = icp(index, ppc, CR_ERROR @ TRUE_POSE)
+    assert result.converged
+    assert _pose_error_mm(result.transform, ppc) < 0.01
+    assert result.rms_mm < 0.01
+    np.testing.assert_allclose(result.transform, result.fine_transform @ CR_ERROR @ TRUE_POSE, atol=1e-12)
+
+
+def test_ramsicp_recovers_known_pose_when_truth_is_in_range(ellipsoid):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 400)
+    coarse = CR_ERROR @ TRUE_POSE
+    cr_points = apply_transform(coarse, ppc)
+    closest, _ = index.nearest(cr_points)
+    true_positions = apply_transform(TRUE_POSE, ppc)
+    # Keep the points whose true match lies within k_i = 5 D_i of their CR position (eq. 6-8, L = 5).
+    reachable = np.linalg.norm(true_positions - cr_points, axis=1) <= 5.0 * closest
+    assert reachable.sum() >= 40
+    result = ramsicp(index, ppc[reachable], coarse, scale=5.0)
+    assert result.converged
+    assert _pose_error_mm(result.transform, ppc) < 0.01
+    # eq. 10: final = F @ coarse
+    np.testing.assert_allclose(result.transform, result.fine_transform @ coarse, atol=1e-12)
+
+
+def test_scale_one_is_one_closest_point_procrustes_step(ellipsoid):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 50)
+    coarse = CR_ERROR @ TRUE_POSE
+    cr_points = apply_transform(coarse, ppc)
+    _, closest = index.nearest(cr_points)
+    one_step = rigid_procrustes(cr_points, points[closest])
+    result = ramsicp(index, ppc, coarse, scale=1.0, min_radius_mm=0.0)
+    np.testing.assert_allclose(result.fine_transform, one_step, atol=1e-12)
+    assert result.iterations == 2  # the second iteration finds the same matches and the RMS does not change
+    assert result.rms_history_mm[0] == result.rms_history_mm[1]
+
+
+def _brute_force_match(ipc, centres, radii, moving):
+    """Eqs. 6-7 literally: closest IPC point to each moving point among those within k_i of its CR position."""
+    matches = []
+    for centre, radius, point in zip(centres, radii, moving):
+        in_range = np.flatnonzero(np.linalg.norm(ipc - centre, axis=1) <= radius)
+        matches.append(in_range[np.argmin(np.linalg.norm(ipc[in_range] - point, axis=1))])
+    return np.array(matches)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.4, 2.0, 3.6, 5.0])
+def test_range_matching_equals_brute_force(ellipsoid, scale, rng):
+    points, index = ellipsoid
+    centres = points[rng.choice(len(points), 30)] + rng.normal(scale=1.5, size=(30, 3))
+    ranges = MatchingRanges(index, centres, max_scale=5.0)
+    moving = centres + rng.normal(scale=2.0, size=centres.shape)
+    distances, _ = index.nearest(centres)
+    radii = np.maximum(scale * distances, ranges.min_radius_mm) * (1 + 1e-9)
+    expected = _brute_force_match(points, centres, radii, moving)
+    np.testing.assert_array_equal(ranges.matcher(scale)(moving), expected)
+
+
+def test_range_is_inclusive_and_grows_with_scale():
+    # The CR point sits at the origin; IPC points at 1, 1.5, 2 and 3 mm: D = 1 mm.
+    ipc = np.array([[1.0, 0.0, 0.0], [0.0, 1.5, 0.0], [0.0, 0.0, 2.0], [-3.0, 0.0, 0.0]])
+    ranges = MatchingRanges(SurfaceIndex(ipc), np.zeros((1, 3)), max_scale=5.0, min_radius_mm=0.0)
+    assert ranges.closest_distance_mm[0] == 1.0
+    counts = [int(ranges.counts(ranges.radii(scale))[0]) for scale in (1.0, 1.5, 2.0, 2.9, 3.0)]
+    assert counts == [1, 2, 3, 3, 4]
+    far_away = np.array([[-10.0, 0.0, 0.0]])  # closest overall is (-3, 0, 0), only inside the range from L = 3
+    assert ranges.matcher(2.9)(far_away)[0] != 3
+    assert ranges.matcher(3.0)(far_away)[0] == 3
+
+
+def test_minimum_radius_lets_a_point_on_the_surface_move():
+    ipc = np.array([[0.0, 0.0, 0.0], [0.08, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 5.0, 0.0]])
+    ranges = MatchingRanges(SurfaceIndex(ipc), np.zeros((1, 3)), max_scale=5.0)
+    assert ranges.closest_distance_mm[0] == 0.0
+    assert ranges.counts(ranges.radii(5.0))[0] == 2  # the point itself and its neighbour 0.08 mm away
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.99, np.nan, np.inf])
+def test_scale_below_one_or_not_finite_is_rejected(ellipsoid, scale):
+    points, index = ellipsoid
+    with pytest.raises(ValueError, match="must be a finite number >= 1"):
+        ramsicp(index, points[:10], np.eye(4), scale=scale)
+
+
+def test_max_iterations_is_reported(ellipsoid):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 60)
+    result = icp(index, ppc, make_transform(rotation_about_axis((0, 0, 1), np.radians(10))) @ TRUE_POSE,
+                 max_iterations=2)
+    assert result.iterations == 2
+    assert not result.converged
