@@ -24,3 +24,21 @@ def ellipsoid_points(count, semi_axes=(40.0, 25.0, 15.0), seed=0):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def tibia_patient():
+    """The demo's virtual patient: the shipped right tibia with an NDI 8700339 reference body."""
+    from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
+    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+    from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+
+    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
+    return VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+
+
+@pytest.fixture(scope="session")
+def tibia_index(tibia_patient):
+    from RAMSICPRegistrationLib.surface_index import SurfaceIndex
+
+    return SurfaceIndex(tibia_patient.ipc)

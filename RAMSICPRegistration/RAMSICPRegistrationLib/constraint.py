@@ -7,14 +7,18 @@ ICP algorithm", 3DIM 2003). The 6x6 matrix ``A = sum_i a_i a_i^T`` with ``a_i = 
 (``c`` the centroid, ``r`` the RMS radius, so rotations are measured as mm of arc at radius r) tells which
 motions the points constrain. A probe-point noise of ``sigma`` mm leaves each eigen-motion uncertain by about
 ``sigma / sqrt(lambda)`` mm: on a long bone's smooth shaft the rotation about its axis is the usual weak one.
+
+The warning rule is scale-free: a motion is poorly constrained when ``lambda < 1``, that is when all the probe
+points together pin it down less well than one touch pins down a translation along its own surface normal
+(its uncertainty exceeds the probe noise itself).
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
-#: Warn when the weakest motion is uncertain by more than this (mm of arc or of translation).
-DEFAULT_UNCERTAINTY_LIMIT_MM = 0.5
+#: Warn when the weakest eigenvalue is below this: the points fix that motion less well than one touch would.
+MIN_EIGENVALUE = 1.0
 #: Probe-tip noise assumed for the uncertainty (RMS, mm).
 DEFAULT_PROBE_NOISE_MM = 0.25
 
@@ -40,15 +44,13 @@ class ConstraintReport:
     warning: str = None
 
 
-def analyse_pose_constraint(points, normals, probe_noise_mm=DEFAULT_PROBE_NOISE_MM,
-                            limit_mm=DEFAULT_UNCERTAINTY_LIMIT_MM, long_axis=None):
+def analyse_pose_constraint(points, normals, probe_noise_mm=DEFAULT_PROBE_NOISE_MM, long_axis=None):
     """Analyse how well surface points (N, 3) with unit normals (N, 3) fix a rigid pose.
 
     Args:
         points: registered probe points in image coordinates (mm).
         normals: IPC surface normals at their matches (sign irrelevant).
-        probe_noise_mm: RMS probe noise used to turn the eigenvalues into uncertainties.
-        limit_mm: uncertainty above which a warning is issued.
+        probe_noise_mm: RMS probe noise used to turn the eigenvalues into uncertainties (mm).
         long_axis: optional (3,) direction of the bone's long axis, named in the warning when the weak motion
             is about or along it.
     """
@@ -65,7 +67,7 @@ def analyse_pose_constraint(points, normals, probe_noise_mm=DEFAULT_PROBE_NOISE_
     part = weakest[:3] if is_rotation else weakest[3:]
     axis = part / np.linalg.norm(part)
     warning = None
-    if uncertainty[0] > limit_mm:
+    if eigenvalues[0] < MIN_EIGENVALUE:
         warning = _describe(uncertainty[0], is_rotation, axis, radius, probe_noise_mm, long_axis)
     return ConstraintReport(uncertainty_mm=uncertainty, weakest_motion=weakest, is_rotation=is_rotation,
                             axis=axis, radius_mm=radius, warning=warning)

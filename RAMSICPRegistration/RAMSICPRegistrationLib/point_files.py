@@ -96,7 +96,7 @@ def write_points(path, points, labels=None):
     elif suffix in (".csv", ".txt"):
         delimiter = "," if suffix == ".csv" else " "
         header = "# SPACE=RAS units=mm x y z"
-        np.savetxt(path, points, fmt="%.9g", delimiter=delimiter, header=header[2:], comments="# ")
+        np.savetxt(path, points, fmt="%.17g", delimiter=delimiter, header=header[2:], comments="# ")
     elif suffix == ".npy":
         np.save(path, points)
     else:
@@ -185,7 +185,7 @@ def _write_fcsv(path, points, labels):
     lines = ["# Markups fiducial file version = 4.11", "# CoordinateSystem = LPS",
              "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID"]
     for i, (label, (x, y, z)) in enumerate(zip(labels, lps)):
-        lines.append(f"{i + 1},{x:.9g},{y:.9g},{z:.9g},0,0,0,1,1,1,0,{label},,")
+        lines.append(f"{i + 1},{x:.17g},{y:.17g},{z:.17g},0,0,0,1,1,1,0,{label},,")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
