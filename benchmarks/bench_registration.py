@@ -1,0 +1,154 @@
+"""Speed of the registration core: the whole 21-value RAMSICP sweep on 200,000 IPC and 40 probe points.
+
+Prints a table of median times and their ratio to our sweep, all measured in this one run:
+
+* ours: KD-tree build (once) + CR + RAMSICP for L = 1.0, 1.2, ..., 5.0, sharing the tree and one ball query;
+* VTK's vtkIterativeClosestPointTransform in rigid-body mode, one ICP run from the CR (it builds its own locator);
+* the same sweep with brute-force nearest neighbours instead of the KD-tree.
+
+Target (issue 3): our sweep at most 0.1 s median on this machine.
+
+Run: python benchmarks/bench_registration.py [--repeats N]
+"""
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+from vtkmodules.vtkCommonCore import vtkPoints
+from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
+from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
+
+from RAMSICPRegistrationLib.icp import icp
+from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
+from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
+from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+from RAMSICPRegistrationLib.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.sweep import PAPER_SCALES, sweep_scales
+from RAMSICPRegistrationLib.transforms import apply_transform
+from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+
+TARGET_SECONDS = 0.1
+
+
+class BruteForceIndex:
+    """SurfaceIndex's interface answered by exhaustive search: the baseline a KD-tree is measured against."""
+
+    def __init__(self, points):
+        self.points = points
+        self.tree = self
+
+    def nearest(self, query):
+        indices = np.empty(len(query), dtype=np.intp)
+        distances = np.empty(len(query))
+        for row, point in enumerate(query):
+            squared = np.einsum("ij,ij->i", self.points - point, self.points - point)
+            indices[row] = np.argmin(squared)
+            distances[row] = np.sqrt(squared[indices[row]])
+        return distances, indices
+
+    def query_ball_point(self, centres, radii):
+        return [np.flatnonzero(np.linalg.norm(self.points - centre, axis=1) <= radius).tolist()
+                for centre, radius in zip(centres, radii)]
+
+
+def our_sweep(ipc, trial, index_class=SurfaceIndex):
+    index = index_class(ipc)
+    coarse = fit_rigid_transform(trial.markers_patient, trial.markers_image).transform
+    return sweep_scales(index, trial.ppc, coarse, PAPER_SCALES)
+
+
+def our_icp(index, trial):
+    coarse = fit_rigid_transform(trial.markers_patient, trial.markers_image).transform
+    return icp(index, trial.ppc, coarse)
+
+
+def _vertices(points):
+    vtk_points = vtkPoints()
+    vtk_points.SetData(numpy_to_vtk(np.ascontiguousarray(points), deep=True))
+    cloud = vtkPolyData()
+    cloud.SetPoints(vtk_points)
+    glyphs = vtkVertexGlyphFilter()  # VTK's ICP needs vertex cells in its target
+    glyphs.SetInputData(cloud)
+    glyphs.Update()
+    return glyphs.GetOutput()
+
+
+def vtk_icp(target_polydata, trial):
+    coarse = fit_rigid_transform(trial.markers_patient, trial.markers_image).transform
+    source = _vertices(apply_transform(coarse, trial.ppc))
+    registration = vtkIterativeClosestPointTransform()
+    registration.SetSource(source)
+    registration.SetTarget(target_polydata)
+    registration.GetLandmarkTransform().SetModeToRigidBody()
+    registration.SetMaximumNumberOfLandmarks(len(trial.ppc))
+    registration.SetMaximumNumberOfIterations(200)
+    registration.CheckMeanDistanceOn()
+    registration.SetMeanDistanceModeToRMS()
+    registration.SetMaximumMeanDistance(1e-5)
+    registration.StartByMatchingCentroidsOff()
+    registration.Modified()
+    registration.Update()
+    matrix = registration.GetMatrix()
+    return np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)]) @ coarse
+
+
+def median_seconds(function, repeats):
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), times
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=21)
+    arguments = parser.parse_args()
+
+    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
+    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    rng = np.random.default_rng(1)
+    fle = patient.marker_fle_for_cr_tre(1.33)
+    trials = [patient.simulate_trial(rng, fle) for _ in range(arguments.repeats)]
+    ipc = patient.ipc
+    print(f"IPC {len(ipc):,} points, PPC {len(trials[0].ppc)} points, {len(PAPER_SCALES)} values of L, "
+          f"{arguments.repeats} repeats (a new trial each)")
+
+    counter = iter(range(10**9))
+    ours, _ = median_seconds(lambda: our_sweep(ipc, trials[next(counter) % len(trials)]), arguments.repeats)
+    tree, _ = median_seconds(lambda: SurfaceIndex(ipc), arguments.repeats)
+    index = SurfaceIndex(ipc)
+    counter = iter(range(10**9))
+    our_icp_seconds, _ = median_seconds(lambda: our_icp(index, trials[next(counter) % len(trials)]), arguments.repeats)
+    target = _vertices(ipc)
+    counter = iter(range(10**9))
+    vtk_seconds, _ = median_seconds(lambda: vtk_icp(target, trials[next(counter) % len(trials)]), arguments.repeats)
+    brute_repeats = 3
+    counter = iter(range(10**9))
+    brute, _ = median_seconds(lambda: our_sweep(ipc, trials[next(counter)], BruteForceIndex), brute_repeats)
+
+    # Same answer check: VTK's ICP and ours from the same CR should land close together.
+    ours_icp_transform = our_icp(index, trials[0]).transform
+    vtk_transform = vtk_icp(target, trials[0])
+    gap = np.abs(apply_transform(ours_icp_transform, trials[0].ppc) - apply_transform(vtk_transform, trials[0].ppc)).max()
+
+    rows = [
+        ("ours: KD-tree build + CR + 21-L RAMSICP sweep", ours),
+        ("ours: KD-tree build alone (200,000 points)", tree),
+        ("ours: one CR-ICP run (tree reused)", our_icp_seconds),
+        ("VTK vtkIterativeClosestPointTransform, rigid, one ICP run", vtk_seconds),
+        (f"brute-force nearest neighbours: 21-L sweep ({brute_repeats} repeats)", brute),
+    ]
+    print(f"\n{'what':<66} {'median (ms)':>12} {'ratio to our sweep':>19}")
+    for label, seconds in rows:
+        print(f"{label:<66} {1000 * seconds:12.1f} {seconds / ours:19.2f}")
+    print(f"\nour sweep target <= {1000 * TARGET_SECONDS:.0f} ms: {'met' if ours <= TARGET_SECONDS else 'NOT met'} "
+          f"({1000 * ours:.1f} ms); ours vs VTK ICP end points differ by at most {gap:.3f} mm")
+
+
+if __name__ == "__main__":
+    main()
