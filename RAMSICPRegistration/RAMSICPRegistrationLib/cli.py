@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .demo import PAPER_TRE_MM, run_demo
+from .demo import PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .package_data import BONES
 from .point_files import read_points
 from .registration import METHODS, POLICIES, register
@@ -166,15 +166,14 @@ def _format_demo(report, total_seconds):
         f"  {'method':<42} {'TRE mean +- sd (mm)':>20}   {'paper (mm)':>12}",
     ]
     for label, (mean, sd) in report.summary().items():
-        paper_key = label.split(" ")[0]
-        paper = PAPER_TRE_MM.get(paper_key) if label in ("CR", "CR-ICP") or "paper" in label else None
+        paper = PAPER_TRE_MM.get(PAPER_ROWS.get(label))
         paper_text = f"{paper[0]:.2f} +- {paper[1]:.2f}" if paper else ""
         lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}")
     seconds = report.seconds
     lines += [
         "",
-        f"  chosen L: paper's policy mean {np.mean(report.chosen_scales[next(iter(report.chosen_scales))]):.1f}, "
-        f"rms-plateau mean {np.mean(list(report.chosen_scales.values())[1]):.1f}",
+        "  mean L chosen by policy: " + ", ".join(f"{policy} {np.mean(values):.1f}"
+                                                  for policy, values in report.chosen_scales.items()),
         f"  time: {total_seconds:.1f} s in all (set-up {seconds['setup']:.1f} s, KD-tree "
         f"{1000 * seconds['kd_tree_build']:.0f} ms once, {1000 * seconds['per_trial_mean']:.0f} ms per trial "
         "for CR + CR-ICP + a 21-value RAMSICP sweep)",

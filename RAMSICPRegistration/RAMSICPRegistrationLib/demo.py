@@ -17,6 +17,9 @@ logger = logging.getLogger(__name__)
 #: The paper's Fig. 8: mean +- sd TRE (mm) over 15 subjects.
 PAPER_TRE_MM = {"CR": (1.33, 0.27), "CR-ICP": (0.89, 0.14), "CR-RAMSICP": (0.56, 0.08)}
 PROBE_NOISE_MM = 0.25
+#: The demo's rows that the paper reports: CR, CR-ICP and CR-RAMSICP with the paper's choice of L.
+PAPER_POLICY_LABEL = "CR-RAMSICP (L by min TRE, paper)"
+PAPER_ROWS = {"CR": "CR", "CR-ICP": "CR-ICP", PAPER_POLICY_LABEL: "CR-RAMSICP"}
 
 
 @dataclass(frozen=True)
@@ -31,7 +34,7 @@ class DemoReport:
     probe_noise_mm: float
     marker_fle_mm: float
     tre_mm: dict  # method label -> (trials,) array
-    chosen_scales: dict  # RAMSICP label -> (trials,) array of L
+    chosen_scales: dict  # policy name -> (trials,) array of the L it chose
     seconds: dict = field(default_factory=dict)
 
     def summary(self):
@@ -71,10 +74,11 @@ def run_demo(trials=20, seed=0, bone="right-tibia", target_cr_tre_mm=PAPER_TRE_M
     setup_seconds = time.perf_counter() - clock
     logger.info("virtual patient ready in %.2f s, marker placement error %.2f mm", setup_seconds, marker_fle)
 
-    labels = ("CR", "CR-ICP", "CR-RAMSICP (L by min TRE, paper)", "CR-RAMSICP (rms-plateau, target-free)",
+    labels = ("CR", "CR-ICP", PAPER_POLICY_LABEL, "CR-RAMSICP (rms-plateau, target-free)",
               f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})")
     tre = {label: np.empty(trials) for label in labels}
-    scales = {label: np.empty(trials) for label in labels[2:]}
+    policies = ("targets", "rms-plateau", "fixed")
+    scales = {policy: np.empty(trials) for policy in policies}
     rng = np.random.default_rng(seed + 1)
     clock = time.perf_counter()
     index = SurfaceIndex(patient.ipc)
@@ -90,13 +94,13 @@ def run_demo(trials=20, seed=0, bone="right-tibia", target_cr_tre_mm=PAPER_TRE_M
         start = time.perf_counter()
         swept = register(method="cr-ramsicp", sweep=True, policy="targets", **common)
         registration_seconds["cr-ramsicp_sweep"] += time.perf_counter() - start
-        for policy, label in zip(("targets", "rms-plateau", "fixed"), labels[2:]):
+        for policy, label in zip(policies, labels[2:]):
             entry = swept.sweep[select_scale(swept.sweep, policy)]
             tre[label][trial] = entry.tre_mm
-            scales[label][trial] = entry.scale
+            scales[policy][trial] = entry.scale
         if progress is not None:
             progress(trial + 1, trials)
-    seconds = {"setup": setup_seconds, **{key: value for key, value in registration_seconds.items()}}
+    seconds = {"setup": setup_seconds, **registration_seconds}
     seconds["per_trial_mean"] = (sum(registration_seconds.values()) - registration_seconds["kd_tree_build"]) / trials
     return DemoReport(bone=bone, trials=trials, seed=seed, ipc_points=len(patient.ipc),
                       probe_points=len(data.ppc), probe_noise_mm=PROBE_NOISE_MM, marker_fle_mm=marker_fle,

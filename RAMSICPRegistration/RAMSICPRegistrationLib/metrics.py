@@ -61,12 +61,11 @@ def predicted_tre(fiducials, targets, fle_mm):
     """
     centre = fiducials.mean(axis=0)
     centred = fiducials - centre
-    _, _, axes = np.linalg.svd(centred)
-    fiducial_ratio = np.empty(3)
-    target_offsets = np.asarray(targets, dtype=np.float64) - centre
-    ratio_sum = np.zeros(len(target_offsets))
-    for k, axis in enumerate(axes):
-        fiducial_ratio[k] = np.mean(np.sum(centred**2, axis=1) - (centred @ axis) ** 2)
-        target_distance_squared = np.sum(target_offsets**2, axis=1) - (target_offsets @ axis) ** 2
-        ratio_sum += target_distance_squared / fiducial_ratio[k]
+    offsets = np.asarray(targets, dtype=np.float64) - centre
+    _, _, principal_axes = np.linalg.svd(centred)
+    ratio_sum = np.zeros(len(offsets))
+    for axis in principal_axes:
+        fiducial_squared = np.mean(np.sum(centred**2, axis=1) - (centred @ axis) ** 2)  # f_k^2
+        target_squared = np.sum(offsets**2, axis=1) - (offsets @ axis) ** 2  # d_k^2
+        ratio_sum += target_squared / fiducial_squared
     return fle_mm / np.sqrt(len(fiducials)) * np.sqrt(1.0 + ratio_sum / 3.0)
