@@ -88,8 +88,8 @@ class MatchingRanges:
         self._distances = distances[order]
         self._owner = owner[order]
         self._starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
-        self._sort_key = self._distances + self._owner * (largest.max() + 1.0)
-        self._key_offset = np.arange(len(cr_points)) * (largest.max() + 1.0)
+        if (counts == 0).any():  # cannot happen: the closest point is always inside the largest ball
+            raise RuntimeError("a matching range came out empty; please report this with the input points")
         self.max_scale = float(max_scale)
 
     def radii(self, scale):
@@ -98,9 +98,9 @@ class MatchingRanges:
         return radii * (1.0 + _RANGE_SLACK) + 1e-12
 
     def counts(self, radii):
-        """Number of candidates of each point inside ``radii`` (N,)."""
-        ends = np.searchsorted(self._sort_key, self._key_offset + radii, side="right")
-        return ends - self._starts
+        """Number of candidates of each point inside ``radii`` (N,); each list is sorted, so this is a prefix."""
+        inside = self._distances <= radii[self._owner]
+        return np.add.reduceat(inside, self._starts)
 
     def matcher(self, scale):
         """A function mapping moving points (N, 3) to their matched IPC indices (N,) for this L."""

@@ -24,8 +24,8 @@ def as_points(values, name, min_count=1):
         points = np.array(values, dtype=np.float64)
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name}: cannot read as numbers ({error}); pass an (N, 3) array of mm") from None
-    if points.ndim == 1 and points.size == 3:
-        points = points.reshape(1, 3)
+    if points.ndim == 1 and points.size in (0, 3):
+        points = points.reshape(-1, 3)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name}: expected an (N, 3) array of x, y, z in mm, got shape {points.shape}")
     if points.shape[0] < min_count:
