@@ -1,0 +1,243 @@
+"""CT phantoms: a C-arm-CT-like volume of a real bone with its reference body, and the ground truth.
+
+The paper's C-arm CT has 0.5 mm pixels and 0.625 mm slices. The phantom renders, with partial volume at every
+boundary (signed distances, not voxel labels):
+
+* the bone from a real mesh: cortical shell (``CORTEX_THICKNESS_MM``), fatty marrow in the shaft and cancellous
+  bone in the epiphysis (``EPIPHYSIS_MM`` below the top);
+* soft tissue around the bone, air elsewhere;
+* the reference body: 4 marker spheres (11.5 mm) at the NDI tool geometry, on plastic posts and a plastic frame
+  joined to the bone by a carbon-fibre bracket. Plastic and carbon stay below the bone threshold, as in CT of
+  real passive tools; the spheres' reflective coating makes them bright;
+
+then blurs with the scanner's point spread and adds Gaussian noise. Every value is a documented constant below;
+the phantom is deterministic under its seed. Optionally one sphere is partial (a cap missing) and one deformed
+(stretched), like the defects of the paper's Fig. 4a.
+"""
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from .package_data import MARKER_DIAMETER_MM
+from .transforms import apply_transform
+from .virtual_patient import sample_surface
+from .volume_io import CTVolume
+
+logger = logging.getLogger(__name__)
+
+PAPER_SPACING_MM = (0.5, 0.5, 0.625)
+HU = {"air": -1000.0, "soft_tissue": 40.0, "marrow": -40.0, "cancellous": 300.0, "cortex": 1400.0,
+      "marker": 700.0, "plastic": 110.0, "carbon": 160.0}
+CORTEX_THICKNESS_MM = 2.5
+EPIPHYSIS_MM = 60.0
+SOFT_TISSUE_MM = 15.0
+PSF_SIGMA_MM = 0.35
+NOISE_HU = 25.0
+POST_LENGTH_MM = 12.0
+POST_RADIUS_MM = 1.5
+FRAME_RADIUS_MM = 3.0
+BRACKET_RADIUS_MM = 4.0
+
+
+@dataclass(frozen=True)
+class PhantomTruth:
+    """Ground truth of a CT phantom, all in the image's RAS frame (mm)."""
+
+    reference_to_image: np.ndarray
+    marker_centres: np.ndarray  # (4, 3) true sphere centres
+    marker_radius_mm: float
+    marker_defects: dict  # marker number -> 'partial' or 'deformed'
+    bone_vertices: np.ndarray
+    bone_triangles: np.ndarray
+    settings: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        return {"reference_to_image": self.reference_to_image.tolist(), "marker_centres": self.marker_centres.tolist(),
+                "marker_radius_mm": self.marker_radius_mm,
+                "marker_defects": {str(k): v for k, v in self.marker_defects.items()}, **self.settings}
+
+
+def make_ct_phantom(patient, vertices, triangles, seed=0, spacing=PAPER_SPACING_MM, noise_hu=NOISE_HU,
+                    defects=None, margin_mm=12.0, below_cut_mm=110.0):
+    """Render a CT phantom of a virtual patient.
+
+    Args:
+        patient: VirtualPatient (its reference_to_image and markers_reference place the reference body).
+        vertices, triangles: the bone mesh in image coordinates (RAS mm).
+        seed: fixes the noise.
+        spacing: voxel size (mm) along i, j, k; the paper's is 0.5 x 0.5 x 0.625.
+        noise_hu: standard deviation of the image noise (HU).
+        defects: optional {marker number (0-3): 'partial' | 'deformed'}.
+        margin_mm: field of view beyond the markers and the bone region.
+        below_cut_mm: how far below the osteotomy cut the field of view reaches.
+
+    Returns:
+        (CTVolume, PhantomTruth). The volume's i, j, k axes point L, P, S (an LPS-aligned scanner grid).
+    """
+    defects = dict(defects or {})
+    spacing = np.asarray(spacing, dtype=np.float64)
+    markers = patient.markers_image
+    radius = MARKER_DIAMETER_MM / 2.0
+    top = vertices[:, 2].max()
+    bone_region = vertices[(vertices[:, 2] >= patient.cut_height_mm - below_cut_mm)]
+    low = np.minimum(bone_region.min(axis=0), markers.min(axis=0) - radius) - margin_mm
+    high = np.maximum(bone_region.max(axis=0), markers.max(axis=0) + radius) + margin_mm
+    low[2] = patient.cut_height_mm - below_cut_mm
+    high[2] = top + margin_mm
+    # LPS-aligned grid: i runs to the left (-x RAS), j to posterior (-y), k superior.
+    direction = np.diag([-1.0, -1.0, 1.0])
+    shape = np.ceil((high - low) / spacing).astype(int) + 1
+    origin = np.array([high[0], high[1], low[2]])
+    ijk_to_ras = np.eye(4)
+    ijk_to_ras[:3, :3] = direction * spacing
+    ijk_to_ras[:3, 3] = origin
+    volume = CTVolume(voxels=np.full(tuple(shape), HU["air"], dtype=np.float32), ijk_to_ras=ijk_to_ras)
+    logger.info("CT phantom grid %s voxels of %s mm", tuple(shape), spacing.tolist())
+
+    _paint_bone(volume, vertices, triangles, top, np.random.default_rng(seed))
+    _paint_reference_body(volume, patient, radius, defects)
+    sigma_voxels = PSF_SIGMA_MM / spacing
+    blurred = ndimage.gaussian_filter(volume.voxels, sigma_voxels, truncate=3.0)
+    noise = np.random.default_rng(seed + 1).normal(scale=noise_hu, size=blurred.shape).astype(np.float32)
+    voxels = np.round(blurred + noise).astype(np.int16)
+    truth = PhantomTruth(
+        reference_to_image=patient.reference_to_image.copy(), marker_centres=markers.copy(), marker_radius_mm=radius,
+        marker_defects=defects, bone_vertices=vertices, bone_triangles=triangles,
+        settings={"spacing_mm": spacing.tolist(), "shape": shape.tolist(), "noise_hu": noise_hu,
+                  "psf_sigma_mm": PSF_SIGMA_MM, "hu": HU, "cortex_thickness_mm": CORTEX_THICKNESS_MM,
+                  "seed": seed})
+    return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras), truth
+
+
+def _fraction_inside(signed_distance_mm, ramp_mm):
+    """Partial-volume fraction from a signed distance (negative inside): a linear ramp one voxel wide."""
+    return np.clip(0.5 - signed_distance_mm / ramp_mm, 0.0, 1.0)
+
+
+def _paint_bone(volume, vertices, triangles, top, rng):
+    """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray, vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkImageData, vtkPolyData
+    from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
+
+    spacing = volume.spacing
+    ramp = float(np.mean(spacing))
+    vertices_ijk = volume.ras_to_ijk_points(vertices)
+    margin = int(np.ceil((SOFT_TISSUE_MM + 3.0) / spacing.min()))
+    low = np.maximum(np.floor(vertices_ijk.min(axis=0)).astype(int) - margin, 0)
+    high = np.minimum(np.ceil(vertices_ijk.max(axis=0)).astype(int) + margin, np.array(volume.voxels.shape) - 1)
+    box = tuple(slice(a, b + 1) for a, b in zip(low, high))
+    box_shape = high - low + 1
+
+    # Inside/outside of the closed mesh on the grid, scan-line by scan-line (VTK stencil), in index space.
+    points = vtkPoints()
+    points.SetData(numpy_to_vtk(np.ascontiguousarray(vertices_ijk - low), deep=True))
+    mesh = vtkPolyData()
+    mesh.SetPoints(points)
+    cells = vtkCellArray()
+    cells.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64), deep=True),
+                  numpy_to_vtkIdTypeArray(np.ascontiguousarray(triangles.ravel(), dtype=np.int64), deep=True))
+    mesh.SetPolys(cells)
+    stencil = vtkPolyDataToImageStencil()
+    stencil.SetInputData(mesh)
+    stencil.SetOutputOrigin(0.0, 0.0, 0.0)
+    stencil.SetOutputSpacing(1.0, 1.0, 1.0)
+    stencil.SetOutputWholeExtent(0, box_shape[0] - 1, 0, box_shape[1] - 1, 0, box_shape[2] - 1)
+    to_image = vtkImageStencilToImage()
+    to_image.SetInputConnection(stencil.GetOutputPort())
+    to_image.SetInsideValue(1)
+    to_image.SetOutsideValue(0)
+    to_image.SetOutputScalarTypeToUnsignedChar()
+    to_image.Update()
+    inside = vtk_to_numpy(to_image.GetOutput().GetPointData().GetScalars()).reshape(box_shape[::-1]).transpose(2, 1, 0)
+    inside = inside.astype(bool)
+
+    depth = ndimage.distance_transform_edt(inside, sampling=spacing)  # mm from the surface, inside
+    outside_distance = ndimage.distance_transform_edt(~inside, sampling=spacing)
+    signed = np.where(inside, -depth, outside_distance).astype(np.float32)
+
+    # Near the surface replace the voxel-resolution distance by the exact one: point-to-plane distance to the
+    # nearest of 1.5 million surface samples with their normals.
+    band = np.abs(signed) < 2.0 * spacing.max()
+    samples, normals = sample_surface(vertices, triangles, 1_500_000, rng)
+    band_ijk = np.argwhere(band) + low
+    band_ras = volume.ijk_to_ras_points(band_ijk)
+    _, nearest = cKDTree(samples).query(band_ras)
+    signed[band] = np.einsum("ij,ij->i", band_ras - samples[nearest], normals[nearest])
+
+    box_ras_z = volume.ijk_to_ras[2, 3] + (np.arange(low[2], high[2] + 1) * volume.ijk_to_ras[2, 2])
+    interior = np.where(box_ras_z[None, None, :] > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])
+    cortex = np.clip((CORTEX_THICKNESS_MM + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
+    bone_hu = cortex * HU["cortex"] + (1.0 - cortex) * interior
+    tissue = _fraction_inside(signed - SOFT_TISSUE_MM, ramp)
+    outside_hu = tissue * HU["soft_tissue"] + (1.0 - tissue) * HU["air"]
+    bone = _fraction_inside(signed, ramp)
+    volume.voxels[box] = (bone * bone_hu + (1.0 - bone) * outside_hu).astype(np.float32)
+
+
+def _paint_reference_body(volume, patient, radius, defects):
+    """Bracket, frame, posts and marker spheres, painted in that order (later ones on top)."""
+    pose = patient.reference_to_image
+    markers_tool = patient.markers_reference
+    feet_tool = markers_tool - np.array([POST_LENGTH_MM, 0.0, 0.0])  # posts stand on +x, the marker normal
+    hub_tool = feet_tool.mean(axis=0)
+    feet, hub = apply_transform(pose, feet_tool), apply_transform(pose, hub_tool[None])[0]
+    bone_anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
+    towards_hub = (hub - bone_anchor) / np.linalg.norm(hub - bone_anchor)
+    # The bracket's clamp rests on the bone surface; it does not cut through the cortex.
+    _paint_capsule(volume, hub, bone_anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub, BRACKET_RADIUS_MM, HU["carbon"])
+    for foot in feet:
+        _paint_capsule(volume, foot, hub, FRAME_RADIUS_MM, HU["plastic"])
+    for number, (centre, foot) in enumerate(zip(patient.markers_image, feet)):
+        _paint_capsule(volume, centre, foot, POST_RADIUS_MM, HU["plastic"])
+        _paint_sphere(volume, centre, radius, defects.get(number), outward=centre - foot)
+
+
+def _box_around(volume, low_ras, high_ras):
+    corners = np.array([[x, y, z] for x in (low_ras[0], high_ras[0]) for y in (low_ras[1], high_ras[1])
+                        for z in (low_ras[2], high_ras[2])])
+    ijk = volume.ras_to_ijk_points(corners)
+    low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
+    high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(volume.voxels.shape) - 1)
+    box = tuple(slice(a, b + 1) for a, b in zip(low, high))
+    grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(low, high)], indexing="ij"), axis=-1)
+    return box, volume.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape)
+
+
+def _blend(volume, box, signed_distance, hu):
+    fraction = _fraction_inside(signed_distance, float(np.mean(volume.spacing))).astype(np.float32)
+    volume.voxels[box] = fraction * hu + (1.0 - fraction) * volume.voxels[box]
+
+
+def _paint_capsule(volume, start, end, radius, hu):
+    pad = radius + 2.0
+    box, ras = _box_around(volume, np.minimum(start, end) - pad, np.maximum(start, end) + pad)
+    axis = end - start
+    t = np.clip(((ras - start) @ axis) / (axis @ axis), 0.0, 1.0)
+    signed = np.linalg.norm(ras - (start + t[..., None] * axis), axis=-1) - radius
+    _blend(volume, box, signed, hu)
+
+
+def _paint_sphere(volume, centre, radius, defect, outward):
+    pad = 1.3 * radius + 2.0
+    box, ras = _box_around(volume, centre - pad, centre + pad)
+    offset = ras - centre
+    if defect == "deformed":
+        # Stretched by 20 % across the marker normal: the blurred, bloated look of Fig. 4a.
+        across = np.cross(outward, (0.0, 0.0, 1.0))
+        across /= np.linalg.norm(across)
+        along = offset @ across
+        squeezed = offset + (along / 1.2 - along)[..., None] * across
+        signed = np.linalg.norm(squeezed, axis=-1) - radius
+    else:
+        signed = np.linalg.norm(offset, axis=-1) - radius
+    if defect == "partial":
+        # A cap 4 mm deep is missing on the side facing away from the post (a defect of the reconstruction).
+        unit = outward / np.linalg.norm(outward)
+        signed = np.maximum(signed, offset @ unit - (radius - 4.0))
+    _blend(volume, box, signed, HU["marker"])

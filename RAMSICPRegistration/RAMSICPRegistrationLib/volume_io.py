@@ -1,0 +1,157 @@
+"""CT volumes: NRRD (pynrrd), NIfTI (nibabel) and Slicer scalar volume nodes, converted once to RAS.
+
+A ``CTVolume`` holds the voxel array indexed ``[i, j, k]`` and the (4, 4) ``ijk_to_ras`` matrix that maps a voxel
+index (voxel centres at integer indices) to RAS millimetres, so spacing, origin and direction travel together.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .point_files import PointFileError
+
+_LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
+VOLUME_SUFFIXES = (".nrrd", ".nhdr", ".nii", ".nii.gz")
+
+
+@dataclass(frozen=True)
+class CTVolume:
+    """A CT volume: ``voxels`` (I, J, K) in Hounsfield units and ``ijk_to_ras`` (4, 4), mm."""
+
+    voxels: np.ndarray
+    ijk_to_ras: np.ndarray
+
+    @property
+    def spacing(self):
+        """Voxel size along i, j, k (mm), (3,)."""
+        return np.linalg.norm(self.ijk_to_ras[:3, :3], axis=0)
+
+    @property
+    def direction(self):
+        """Unit RAS directions of the i, j, k axes as columns, (3, 3)."""
+        return self.ijk_to_ras[:3, :3] / self.spacing
+
+    def ijk_to_ras_points(self, ijk):
+        """Map (N, 3) voxel indices (may be fractional) to RAS mm."""
+        return np.asarray(ijk, dtype=np.float64) @ self.ijk_to_ras[:3, :3].T + self.ijk_to_ras[:3, 3]
+
+    def ras_to_ijk_points(self, ras):
+        """Map (N, 3) RAS points (mm) to fractional voxel indices."""
+        return (np.asarray(ras, dtype=np.float64) - self.ijk_to_ras[:3, 3]) @ np.linalg.inv(self.ijk_to_ras[:3, :3]).T
+
+
+def check_volume(voxels, ijk_to_ras, name="CT volume"):
+    """Validate a volume; returns a CTVolume. Raises ValueError saying what to change."""
+    voxels = np.asarray(voxels)
+    if voxels.ndim != 3:
+        raise ValueError(f"{name}: expected a 3-D volume, got {voxels.ndim} dimension(s) of shape {voxels.shape}; "
+                         "load a CT series, not a single slice or a time series")
+    if min(voxels.shape) < 2:
+        raise ValueError(f"{name}: shape {voxels.shape} is empty or flat; the CT needs at least 2 voxels along each axis")
+    ijk_to_ras = np.asarray(ijk_to_ras, dtype=np.float64)
+    if ijk_to_ras.shape != (4, 4) or not np.isfinite(ijk_to_ras).all():
+        raise ValueError(f"{name}: the voxel-to-RAS matrix must be a finite 4x4 matrix")
+    spacing = np.linalg.norm(ijk_to_ras[:3, :3], axis=0)
+    if (spacing <= 1e-6).any() or abs(np.linalg.det(ijk_to_ras[:3, :3])) <= 1e-12:
+        raise ValueError(f"{name}: voxel spacing {np.round(spacing, 6).tolist()} mm has a zero; "
+                         "fix the spacing in the file header (e.g. 0.5 0.5 0.625)")
+    return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras)
+
+
+def load_volume(source):
+    """Load a CT volume from a ``.nrrd``/``.nhdr``/``.nii``/``.nii.gz`` file or a Slicer scalar volume node.
+
+    Raises:
+        PointFileError: a file that is missing, of unknown type or unreadable (names the file and the problem).
+        ValueError: a volume that is not 3-D, is empty, or has a zero spacing.
+    """
+    if hasattr(source, "GetIJKToRASMatrix"):
+        return volume_from_node(source)
+    path = Path(source)
+    if not path.is_file():
+        raise PointFileError(path, "no such file")
+    name = path.name.lower()
+    try:
+        if name.endswith((".nrrd", ".nhdr")):
+            voxels, ijk_to_ras = _read_nrrd(path)
+        elif name.endswith((".nii", ".nii.gz")):
+            voxels, ijk_to_ras = _read_nifti(path)
+        else:
+            raise PointFileError(path, f"unknown volume type; use one of {', '.join(VOLUME_SUFFIXES)}")
+    except PointFileError:
+        raise
+    except Exception as error:  # the readers raise many types for a damaged file
+        raise PointFileError(path, f"cannot read as a volume ({type(error).__name__}: {error})") from None
+    try:
+        return check_volume(voxels, ijk_to_ras, name=str(path))
+    except ValueError as error:
+        raise PointFileError(path, str(error).split(": ", 1)[1]) from None
+
+
+def volume_from_node(node):
+    """CTVolume from a Slicer ``vtkMRMLScalarVolumeNode`` (real MRML; its voxels are copied)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    if not (hasattr(node, "IsA") and node.IsA("vtkMRMLScalarVolumeNode")):
+        raise TypeError(f"expected a vtkMRMLScalarVolumeNode, got {type(node).__name__}")
+    image = node.GetImageData()
+    if image is None:
+        raise ValueError(f"volume node {node.GetName()!r} has no image data; load the CT first")
+    dimensions = image.GetDimensions()
+    voxels = vtk_to_numpy(image.GetPointData().GetScalars()).reshape(dimensions[::-1]).transpose(2, 1, 0).copy()
+    matrix = vtkMatrix4x4()
+    node.GetIJKToRASMatrix(matrix)
+    ijk_to_ras = np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+    return check_volume(voxels, ijk_to_ras, name=f"volume node {node.GetName()!r}")
+
+
+def save_nrrd(path, volume):
+    """Write a CTVolume as NRRD in LPS (as Slicer writes), int16 when the values are whole HU, gzip-compressed."""
+    import nrrd
+
+    ijk_to_lps = _LPS_TO_RAS @ volume.ijk_to_ras
+    voxels = volume.voxels
+    if np.issubdtype(voxels.dtype, np.floating) and np.all(np.abs(voxels) < 32000):
+        voxels = np.round(voxels).astype(np.int16)
+    header = {
+        "space": "left-posterior-superior",
+        "space directions": ijk_to_lps[:3, :3].T,
+        "space origin": ijk_to_lps[:3, 3],
+        "kinds": ["domain", "domain", "domain"],
+        "encoding": "gzip",
+    }
+    nrrd.write(str(path), voxels, header, index_order="F")
+
+
+def _read_nrrd(path):
+    import nrrd
+
+    voxels, header = nrrd.read(str(path), index_order="F")
+    directions = header.get("space directions")
+    if directions is None:
+        raise PointFileError(path, "the NRRD header has no 'space directions'; it does not say where the voxels are")
+    directions = np.array([row for row in directions if row is not None and np.all(np.isfinite(row))], float)
+    if voxels.ndim != 3 or directions.shape != (3, 3):
+        raise PointFileError(path, f"expected a 3-D volume with 3 space directions, got shape {voxels.shape}")
+    origin = np.asarray(header.get("space origin", np.zeros(3)), dtype=np.float64)
+    matrix = np.eye(4)
+    matrix[:3, :3] = directions.T  # each row of 'space directions' is the step of one voxel axis
+    matrix[:3, 3] = origin
+    space = str(header.get("space", "left-posterior-superior")).lower()
+    if space in ("left-posterior-superior", "lps"):
+        matrix = _LPS_TO_RAS @ matrix
+    elif space not in ("right-anterior-superior", "ras"):
+        raise PointFileError(path, f"NRRD space {space!r} is not LPS or RAS")
+    return voxels, matrix
+
+
+def _read_nifti(path):
+    import nibabel
+
+    image = nibabel.load(str(path))
+    voxels = np.asanyarray(image.dataobj)
+    if voxels.ndim == 4 and voxels.shape[3] == 1:
+        voxels = voxels[..., 0]
+    return voxels, np.asarray(image.affine, dtype=np.float64)  # NIfTI's affine maps voxels to RAS+
