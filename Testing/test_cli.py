@@ -90,21 +90,40 @@ def test_register_rejects_half_given_targets_and_missing_files(case_files, capsy
     assert "nothing.vtp: no such file" in capsys.readouterr().err
 
 
-def test_demo_reports_trials_and_summary(tmp_path, capsys):
+def _check_demo_document(document, trials):
+    for mode, rows in document["tre_mm"].items():
+        for label, values in rows.items():
+            assert len(values) == trials
+            assert document["summary_mm"][mode][label]["mean"] == pytest.approx(np.mean(values))
+            assert document["summary_mm"][mode][label]["sd"] == pytest.approx(np.std(values, ddof=1))
+        # The paper's policy takes the minimum TRE over the sweep: never worse than the fixed L.
+        assert np.all(np.array(rows["CR-RAMSICP (L by min TRE, paper)"])
+                      <= np.array(rows["CR-RAMSICP (fixed L = 5)"]) + 1e-12)
+
+
+def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
     output = tmp_path / "demo.json"
-    assert main(["demo", "--trials", "3", "--seed", "2", "--json", str(output)]) == 0
+    assert main(["demo", "--image-source", "mesh", "--trials", "3", "--seed", "2", "--json", str(output)]) == 0
     printed = capsys.readouterr().out
     document = json.loads(output.read_text())
     assert document["trials"] == 3 and document["ipc_points"] == 200_000 and document["probe_points"] == 40
-    for label, values in document["tre_mm"].items():
-        assert len(values) == 3
-        assert document["summary_mm"][label]["mean"] == pytest.approx(np.mean(values))
-        assert document["summary_mm"][label]["sd"] == pytest.approx(np.std(values, ddof=1))
+    assert list(document["tre_mm"]) == ["manual"]
+    _check_demo_document(document, 3)
     assert "1.33 +- 0.27" in printed and "CR-RAMSICP (L by min TRE, paper)" in printed
-    # The paper's policy takes the minimum TRE over the sweep, so it can never be worse than the fixed L.
-    paper = np.array(document["tre_mm"]["CR-RAMSICP (L by min TRE, paper)"])
-    fixed = np.array(document["tre_mm"]["CR-RAMSICP (fixed L = 5)"])
-    assert np.all(paper <= fixed + 1e-12)
+
+
+def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):
+    output = tmp_path / "demo.json"
+    assert main(["demo", "--trials", "2", "--json", str(output)]) == 0
+    document = json.loads(output.read_text())
+    side = document["image_side"]
+    assert max(side["automatic_marker_errors_mm"]) < 0.1  # the target for automatic centres
+    assert 50_000 < side["ipc_points"] < 300_000 and abs(side["ipc_offset_mm"]) < 0.1
+    assert list(document["tre_mm"]) == ["manual", "automatic"]
+    _check_demo_document(document, 2)
+    # Automatic centres are a hundred times better than the paper's manual placement: the CR shows it.
+    assert max(document["tre_mm"]["automatic"]["CR"]) < 0.3
+    assert "marker centres found automatically in the CT" in capsys.readouterr().out
 
 
 def test_console_script_module_runs():

@@ -10,11 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .demo import PAPER_ROWS, PAPER_TRE_MM, run_demo
-from .package_data import BONES
-from .point_files import read_points
+from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
+from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, resample_points, segment_bone
+from .marker_spheres import detect_marker_spheres, order_to_tool
+from .package_data import BONES, DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .registration import METHODS, POLICIES, register
-from .surface_files import read_surface_points
+from .surface_files import read_surface_points, write_surface
+from .volume_io import load_volume
 from .surface_index import SurfaceIndex
 from .sweep import make_scales
 
@@ -70,8 +73,24 @@ def _parser():
     demo.add_argument("--trials", type=int, default=50, help="number of simulated registrations (default 50)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     demo.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
+    demo.add_argument("--image-source", choices=("ct", "mesh"), default="ct",
+                      help="ct: IPC and marker centres from a CT phantom (default); mesh: IPC sampled on the mesh")
     demo.add_argument("--json", type=Path, help="write every trial's TRE as JSON")
     demo.set_defaults(run=_run_demo)
+
+    ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
+    ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii or .nii.gz")
+    ipc.add_argument("--threshold", default=str(DEFAULT_THRESHOLD_HU),
+                     help=f"bone threshold in HU, or 'auto' (Otsu); default {DEFAULT_THRESHOLD_HU:g}")
+    ipc.add_argument("--spacing", type=float, help="thin the IPC to about one point per this many mm")
+    ipc.add_argument("--keep-cavities", action="store_true",
+                     help="keep the inner (marrow) surface of the cortex in the IPC, as the paper's IPC does")
+    ipc.add_argument("--out", type=Path, required=True, help="IPC file: .vtp .vtk .ply .stl .obj or a point file")
+    ipc.add_argument("--markers", type=Path, help="write the marker-sphere centres (.mrk.json, .fcsv, ...)")
+    ipc.add_argument("--tool", default=DEFAULT_REFERENCE_TOOL,
+                     help=f"NDI tool whose marker order the centres follow (default {DEFAULT_REFERENCE_TOOL})")
+    ipc.add_argument("--json", type=Path, help="write counts, thresholds, spheres and timings as JSON")
+    ipc.set_defaults(run=_run_ipc)
     return parser
 
 
@@ -133,17 +152,26 @@ def _numbers(values):
     return " ".join(f"{value:.2f}" for value in values)
 
 
-def _run_demo(arguments):
-    def progress(done, total):
-        if sys.stderr.isatty():
-            filled = int(30 * done / total)
-            print(f"\r  trials [{'#' * filled}{'.' * (30 - filled)}] {done}/{total}", end="", file=sys.stderr,
-                  flush=True)
-            if done == total:
-                print(file=sys.stderr)
+class _ProgressBar:
+    """A one-line progress bar on stderr, drawn only when stderr is a terminal."""
 
+    def __init__(self, stream=sys.stderr, width=30):
+        self.stream, self.width, self.step = stream, width, None
+
+    def __call__(self, step, done, total):
+        if not self.stream.isatty():
+            return
+        filled = int(self.width * done / max(total, 1))
+        print(f"\r  {step:<22} [{'#' * filled}{'.' * (self.width - filled)}] {done}/{total}", end="",
+              file=self.stream, flush=True)
+        if done >= total:
+            print(file=self.stream)
+
+
+def _run_demo(arguments):
     clock = time.perf_counter()
-    report = run_demo(trials=arguments.trials, seed=arguments.seed, bone=arguments.bone, progress=progress)
+    report = run_demo(trials=arguments.trials, seed=arguments.seed, bone=arguments.bone,
+                      image_source=arguments.image_source, progress=_ProgressBar())
     total = time.perf_counter() - clock
     print(_format_demo(report, total))
     if arguments.json:
@@ -155,30 +183,103 @@ def _run_demo(arguments):
 
 def _format_demo(report, total_seconds):
     bone = report.bone.replace("-", " ")
-    lines = [
-        f"RAMSICP Navigator demo: virtual patient from the Visible Human Female {bone} (CC BY 4.0)",
-        f"  IPC {report.ipc_points:,} surface points; PPC {report.probe_points} probe points in 8 sub-areas x 5 "
-        f"on the medial shaft; probe noise {report.probe_noise_mm:.2f} mm RMS",
-        f"  reference body NDI 8700339 (4 spheres, 11.5 mm); marker placement error {report.marker_fle_mm:.2f} mm "
-        "RMS (set for the paper's CR TRE)",
-        f"  4 targets on a high tibial osteotomy cut; {report.trials} trials, seed {report.seed}",
-        "",
-        f"  {'method':<42} {'TRE mean +- sd (mm)':>20}   {'paper (mm)':>12}",
-    ]
-    for label, (mean, sd) in report.summary().items():
-        paper = PAPER_TRE_MM.get(PAPER_ROWS.get(label))
-        paper_text = f"{paper[0]:.2f} +- {paper[1]:.2f}" if paper else ""
-        lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}")
-    seconds = report.seconds
+    side = report.image_side
+    lines = [f"RAMSICP Navigator demo: virtual patient from the Visible Human Female {bone} (CC BY 4.0)"]
+    if report.image_source == "ct":
+        errors = side.marker_errors_mm
+        lines.append(f"  image side from a CT phantom (0.5 x 0.5 x 0.625 mm): IPC {report.ipc_points:,} points "
+                     f"(median {side.ipc_offset_mm:+.2f} mm from the true surface); automatic marker centres "
+                     f"off by {errors.mean():.3f} mm mean, {errors.max():.3f} mm max")
+    else:
+        lines.append(f"  IPC {report.ipc_points:,} points sampled on the bone mesh")
     lines += [
-        "",
-        "  mean L chosen by policy: " + ", ".join(f"{policy} {np.mean(values):.1f}"
-                                                  for policy, values in report.chosen_scales.items()),
-        f"  time: {total_seconds:.1f} s in all (set-up {seconds['setup']:.1f} s, KD-tree "
-        f"{1000 * seconds['kd_tree_build']:.0f} ms once, {1000 * seconds['per_trial_mean']:.0f} ms per trial "
-        "for CR + CR-ICP + a 21-value RAMSICP sweep)",
+        f"  PPC {report.probe_points} probe points in 8 sub-areas x 5 on the medial shaft; probe noise "
+        f"{report.probe_noise_mm:.2f} mm RMS; reference body NDI 8700339 (4 spheres, 11.5 mm)",
+        f"  manual marker placement error {report.marker_fle_mm:.2f} mm RMS (set for the paper's CR TRE); "
+        f"4 targets on a high tibial osteotomy cut; {report.trials} trials, seed {report.seed}",
     ]
+    for mode, rows in report.summary().items():
+        lines += ["", f"  {MARKER_MODES[mode]}", f"  {'method':<42} {'TRE mean +- sd (mm)':>20}   {'paper (mm)':>12}"]
+        for label, (mean, sd) in rows.items():
+            paper = PAPER_TRE_MM.get(PAPER_ROWS.get(label)) if mode == "manual" else None
+            paper_text = f"{paper[0]:.2f} +- {paper[1]:.2f}" if paper else ""
+            lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}")
+        lines.append("  mean L chosen by policy: " + ", ".join(
+            f"{policy} {np.mean(values):.1f}" for policy, values in report.chosen_scales[mode].items()))
+    seconds = report.seconds
+    image_seconds = ", ".join(f"{name.replace('_', ' ')} {value:.1f} s" for name, value in side.seconds.items())
+    lines += ["", f"  time: {total_seconds:.1f} s in all" + (f" ({image_seconds})" if image_seconds else "")
+              + f"; KD-tree {1000 * seconds['kd_tree_build']:.0f} ms once; "
+              f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep"]
     return "\n".join(lines)
+
+
+def _run_ipc(arguments):
+    threshold = arguments.threshold if arguments.threshold == "auto" else _number(arguments.threshold, "--threshold")
+    for path in (arguments.out, arguments.markers):
+        if path is not None and _suffix(path) not in POINT_SUFFIXES + (".vtk", ".vtp", ".stl", ".ply", ".obj"):
+            raise ValueError(f"{path}: unknown output type")
+    progress = _ProgressBar()
+    seconds = {}
+    clock = time.perf_counter()
+    progress("loading CT", 0, 4)
+    volume = load_volume(arguments.ct)
+    seconds["load"] = time.perf_counter() - clock
+    progress("segmentation", 1, 4)
+    clock = time.perf_counter()
+    segmentation = segment_bone(volume, threshold)
+    seconds["segmentation"] = time.perf_counter() - clock
+    progress("bone surface", 2, 4)
+    clock = time.perf_counter()
+    surface = bone_surface(volume, segmentation, fill_cavities=not arguments.keep_cavities)
+    points, triangles = surface.points, surface.triangles
+    if arguments.spacing is not None:
+        points, triangles = resample_points(points, arguments.spacing), None
+    seconds["surface"] = time.perf_counter() - clock
+    progress("marker spheres", 3, 4)
+    clock = time.perf_counter()
+    detection = detect_marker_spheres(volume, segmentation)
+    seconds["marker_spheres"] = time.perf_counter() - clock
+    progress("marker spheres", 4, 4)
+    spheres = list(detection.spheres)
+    warnings = list(detection.warnings)
+    if len(spheres) == 4:
+        order, fre = order_to_tool(np.array([sphere.centre for sphere in spheres]), tool_marker_geometry(arguments.tool))
+        spheres = [spheres[i] for i in order]
+        if fre > 1.0:
+            warnings.append(f"the sphere centres do not match NDI tool {arguments.tool}'s geometry (FRE {fre:.2f} mm); "
+                            "check --tool")
+    if _suffix(arguments.out) in POINT_SUFFIXES:
+        write_points(arguments.out, points)
+    else:
+        write_surface(arguments.out, points, triangles)
+    if arguments.markers is not None and spheres:
+        write_points(arguments.markers, np.array([sphere.centre for sphere in spheres]),
+                     labels=[f"M{i + 1} {sphere.status}" for i, sphere in enumerate(spheres)])
+    voxels = "x".join(str(n) for n in volume.voxels.shape)
+    print(f"CT               {arguments.ct}: {voxels} voxels of {' x '.join(f'{s:g}' for s in volume.spacing)} mm")
+    print(f"threshold        {segmentation.threshold_hu:.0f} HU")
+    print(f"IPC              {len(points):,} points -> {arguments.out}")
+    for number, sphere in enumerate(spheres):
+        centre = ", ".join(f"{value:.2f}" for value in sphere.centre)
+        print(f"marker {number + 1}         ({centre}) radius {sphere.radius_mm:.2f} mm, residual "
+              f"{sphere.residual_mm:.3f} mm, {sphere.status}")
+    print("time             " + ", ".join(f"{name.replace('_', ' ')} {value:.2f} s" for name, value in seconds.items()))
+    for warning in warnings:
+        print(f"warning: {warning}")
+    if arguments.json:
+        document = {"ct": str(arguments.ct), "shape": list(volume.voxels.shape), "spacing_mm": volume.spacing.tolist(),
+                    "threshold_hu": segmentation.threshold_hu, "ipc_points": len(points),
+                    "spheres": [sphere.to_dict() for sphere in spheres], "warnings": warnings, "seconds": seconds}
+        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    return 0
+
+
+def _number(text, name):
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{name} {text!r}: give a number of HU or 'auto'") from None
 
 
 if __name__ == "__main__":

@@ -113,6 +113,17 @@ def make_ct_phantom(patient, vertices, triangles, seed=0, spacing=PAPER_SPACING_
     return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras), truth
 
 
+def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000):
+    """Signed distance (mm, positive outside) of (N, 3) points near a closed mesh's surface.
+
+    Point-to-plane distance to the nearest of ``samples`` surface samples with their normals (about 0.15 mm
+    apart on a tibia): exact to well under 0.01 mm within a few mm of the surface, where it is used.
+    """
+    surface, normals = sample_surface(vertices, triangles, samples, rng)
+    _, nearest = cKDTree(surface).query(points)
+    return np.einsum("ij,ij->i", points - surface[nearest], normals[nearest])
+
+
 def _fraction_inside(signed_distance_mm, ramp_mm):
     """Partial-volume fraction from a signed distance (negative inside): a linear ramp one voxel wide."""
     return np.clip(0.5 - signed_distance_mm / ramp_mm, 0.0, 1.0)
@@ -164,11 +175,7 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     # Near the surface replace the voxel-resolution distance by the exact one: point-to-plane distance to the
     # nearest of 1.5 million surface samples with their normals.
     band = np.abs(signed) < 2.0 * spacing.max()
-    samples, normals = sample_surface(vertices, triangles, 1_500_000, rng)
-    band_ijk = np.argwhere(band) + low
-    band_ras = volume.ijk_to_ras_points(band_ijk)
-    _, nearest = cKDTree(samples).query(band_ras)
-    signed[band] = np.einsum("ij,ij->i", band_ras - samples[nearest], normals[nearest])
+    signed[band] = signed_distance_to_mesh(volume.ijk_to_ras_points(np.argwhere(band) + low), vertices, triangles, rng)
 
     box_ras_z = volume.ijk_to_ras[2, 3] + (np.arange(low[2], high[2] + 1) * volume.ijk_to_ras[2, 2])
     interior = np.where(box_ras_z[None, None, :] > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])

@@ -21,6 +21,10 @@ logger = logging.getLogger(__name__)
 DEFAULT_THRESHOLD_HU = 200.0
 #: Gaussian denoising before the threshold (mm): about half the paper's pixel.
 DEFAULT_DENOISE_SIGMA_MM = 0.3
+#: The half-maximum bone surface needs voxels that resolve the cortex (mm).
+HALF_MAX_MAX_VOXEL_MM = 1.0
+#: Brighter than any bone: metal (implants), left out when the cortex's brightness is measured.
+METAL_HU = 2500.0
 #: Islands smaller than this (mm^3) are noise, not objects.
 MIN_OBJECT_MM3 = 50.0
 
@@ -57,7 +61,8 @@ def otsu_threshold(values, bins=512):
     mean_low = np.cumsum(histogram * centres) / np.maximum(weight_low, 1)
     mean_high = (np.sum(histogram * centres) - np.cumsum(histogram * centres)) / np.maximum(weight_high, 1)
     between = weight_low * weight_high * (mean_low - mean_high) ** 2
-    return float(centres[np.argmax(between)])
+    best = np.flatnonzero(between >= between.max() * (1.0 - 1e-9))  # a plateau when the classes are apart
+    return float(np.mean(edges[best + 1]))
 
 
 def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEFAULT_DENOISE_SIGMA_MM):
@@ -118,22 +123,25 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
         fill_cavities: fill the marrow cavity slice by slice so only the outer surface remains.
         level: ``'half-max'`` (default) puts the surface half-way between the cortex and the tissue just outside
             it, both measured in this CT, which removes the blur's outward bias of a low threshold (0.6 mm on
-            the phantoms at 200 HU); ``'threshold'`` uses the segmentation threshold; or a number of HU.
+            the phantoms at 200 HU). It needs voxels that resolve the cortex (at most ``HALF_MAX_MAX_VOXEL_MM``);
+            coarser CTs get the threshold surface. ``'threshold'`` uses the segmentation threshold; or a number.
     """
     mask = segmentation.bone_mask
     low, high = _bounding_box(mask, pad=4)
     box = tuple(slice(a, b) for a, b in zip(low, high))
     mask = mask[box]
     image = segmentation.smoothed[box].copy()
-    level = _surface_level(image, mask, segmentation.threshold_hu, level)
+    level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
     if fill_cavities:
+        # Everything darker than the surface level that the bone encloses, slice by slice, is cavity: raising
+        # it removes the inner (marrow) wall and leaves the outer edge, which is open to the outside, alone.
         axis = int(np.argmax(np.array(mask.shape) * volume.spacing))  # along the bone: slices across it
-        in_slice = np.zeros((3, 3, 3), dtype=bool)  # connectivity within a slice only: fill slice by slice
+        in_slice = np.zeros((3, 3, 3), dtype=bool)
         in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
-        filled = ndimage.binary_fill_holes(mask, structure=in_slice)
-        inner = ndimage.binary_erosion(filled, iterations=1, border_value=1)
-        image[inner] = np.maximum(image[inner], level + 100.0)
-        mask = filled
+        bright = (image >= level) & ndimage.binary_dilation(mask, iterations=2)
+        cavity = ndimage.binary_fill_holes(bright, structure=in_slice) & ~bright
+        image[cavity] = level + 100.0
+        mask = mask | cavity
     # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC.
     image[~ndimage.binary_dilation(mask, iterations=2)] = min(float(image.min()), level - 1000.0)
     vertices_ijk, triangles = iso_surface(image, level)
@@ -142,18 +150,22 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
     return BoneSurface(points=volume.ijk_to_ras_points(vertices_ijk + low), triangles=triangles)
 
 
-def _surface_level(image, mask, threshold, level):
+def _surface_level(image, mask, threshold, level, spacing):
     if level == "threshold":
         return threshold
     if level != "half-max":
         return float(level)
-    rim = mask & ~ndimage.binary_erosion(mask, iterations=2)
-    shell = ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)
-    cortex = float(np.percentile(image[rim], 99))
-    outside = float(np.median(image[shell]))
+    if spacing.max() > HALF_MAX_MAX_VOXEL_MM:
+        logger.info("voxels of %.1f mm do not resolve the cortex: bone surface at the threshold", spacing.max())
+        return threshold
+    # The cortex's brightness, read just beneath the blurred edge (1 to 4 voxels deep), metal left out.
+    rim = ndimage.binary_erosion(mask, iterations=1) & ~ndimage.binary_erosion(mask, iterations=4)
+    rim_values = image[rim]
+    cortex = float(np.percentile(rim_values[rim_values < METAL_HU], 95))
+    outside = float(np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)]))
     logger.info("bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2,
                 cortex, outside)
-    return max(threshold, 0.5 * (cortex + outside))
+    return 0.5 * (cortex + outside)
 
 
 def iso_surface(image, level):

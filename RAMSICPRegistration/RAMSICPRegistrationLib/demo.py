@@ -1,4 +1,13 @@
-"""The main job of ``ramsicp demo``: CR, CR-ICP and CR-RAMSICP on a virtual patient, trial after trial."""
+"""The main job of ``ramsicp demo``: the image side on a CT phantom, then CR, CR-ICP and CR-RAMSICP trial by trial.
+
+1. A virtual patient from a shipped tibia mesh (``VirtualPatient``) and its CT phantom (``make_ct_phantom``).
+2. The image side from the CT alone: segmentation, the IPC, the 4 marker-sphere centres found automatically.
+3. Trials: probe points touched on the true bone surface with noise; the marker centres in the image either
+   the automatic ones or the paper's manual placement (true centres plus an error set so that the CR's mean
+   TRE is the paper's 1.33 mm). Each is registered with CR, CR-ICP and CR-RAMSICP (three ways to pick L).
+
+``image_source='mesh'`` skips the CT (IPC sampled on the mesh, manual markers only): the quick variant.
+"""
 
 import logging
 import time
@@ -6,6 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .ct_phantom import make_ct_phantom, signed_distance_to_mesh
+from .ct_segmentation import bone_surface, segment_bone
+from .marker_spheres import detect_marker_spheres, order_to_tool
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
 from .registration import DEFAULT_SCALE, register, select_scale
 from .surface_files import read_surface_mesh
@@ -17,91 +29,148 @@ logger = logging.getLogger(__name__)
 #: The paper's Fig. 8: mean +- sd TRE (mm) over 15 subjects.
 PAPER_TRE_MM = {"CR": (1.33, 0.27), "CR-ICP": (0.89, 0.14), "CR-RAMSICP": (0.56, 0.08)}
 PROBE_NOISE_MM = 0.25
-#: The demo's rows that the paper reports: CR, CR-ICP and CR-RAMSICP with the paper's choice of L.
-PAPER_POLICY_LABEL = "CR-RAMSICP (L by min TRE, paper)"
-PAPER_ROWS = {"CR": "CR", "CR-ICP": "CR-ICP", PAPER_POLICY_LABEL: "CR-RAMSICP"}
+POLICIES = ("targets", "rms-plateau", "fixed")
+METHOD_LABELS = ("CR", "CR-ICP", "CR-RAMSICP (L by min TRE, paper)", "CR-RAMSICP (rms-plateau, target-free)",
+                 f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})")
+#: Which demo rows the paper reports, and under which name.
+PAPER_ROWS = {"CR": "CR", "CR-ICP": "CR-ICP", "CR-RAMSICP (L by min TRE, paper)": "CR-RAMSICP"}
+MARKER_MODES = {"manual": "marker centres placed by hand (the paper's error)",
+                "automatic": "marker centres found automatically in the CT"}
+
+
+@dataclass(frozen=True)
+class ImageSide:
+    """What the image side produced: the IPC, the automatic marker centres (tool order) and its timings (s)."""
+
+    ipc: np.ndarray
+    automatic_markers: np.ndarray  # (4, 3) or None
+    marker_errors_mm: np.ndarray  # (4,) distance of each automatic centre from the truth, or None
+    seconds: dict
+    ipc_offset_mm: float  # median signed distance of the IPC from the true bone surface (+ outside)
+    warnings: tuple = ()
 
 
 @dataclass(frozen=True)
 class DemoReport:
-    """TRE (mm) of every method in every trial, with the set-up that produced them."""
+    """TRE (mm) of every method in every trial, per marker mode, with the set-up that produced them."""
 
     bone: str
+    image_source: str
     trials: int
     seed: int
     ipc_points: int
     probe_points: int
     probe_noise_mm: float
     marker_fle_mm: float
-    tre_mm: dict  # method label -> (trials,) array
-    chosen_scales: dict  # policy name -> (trials,) array of the L it chose
+    tre_mm: dict  # marker mode -> method label -> (trials,) array
+    chosen_scales: dict  # marker mode -> policy -> (trials,) array of L
+    image_side: ImageSide
     seconds: dict = field(default_factory=dict)
 
     def summary(self):
-        """Per method: (mean, sd) of the TRE in mm."""
-        return {label: (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0)
-                for label, values in self.tre_mm.items()}
+        """marker mode -> method label -> (mean, sd) of the TRE in mm."""
+        return {mode: {label: (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0)
+                       for label, values in rows.items()} for mode, rows in self.tre_mm.items()}
 
     def to_dict(self):
+        side = self.image_side
         return {
-            "bone": self.bone, "trials": self.trials, "seed": self.seed, "ipc_points": self.ipc_points,
-            "probe_points": self.probe_points, "probe_noise_mm": self.probe_noise_mm,
+            "bone": self.bone, "image_source": self.image_source, "trials": self.trials, "seed": self.seed,
+            "ipc_points": self.ipc_points, "probe_points": self.probe_points, "probe_noise_mm": self.probe_noise_mm,
             "marker_fle_mm": self.marker_fle_mm,
-            "tre_mm": {label: values.tolist() for label, values in self.tre_mm.items()},
-            "summary_mm": {label: {"mean": mean, "sd": sd} for label, (mean, sd) in self.summary().items()},
+            "tre_mm": {mode: {label: values.tolist() for label, values in rows.items()}
+                       for mode, rows in self.tre_mm.items()},
+            "summary_mm": {mode: {label: {"mean": mean, "sd": sd} for label, (mean, sd) in rows.items()}
+                           for mode, rows in self.summary().items()},
             "paper_mm": {label: {"mean": mean, "sd": sd} for label, (mean, sd) in PAPER_TRE_MM.items()},
-            "chosen_scales": {label: values.tolist() for label, values in self.chosen_scales.items()},
+            "chosen_scales": {mode: {policy: values.tolist() for policy, values in rows.items()}
+                              for mode, rows in self.chosen_scales.items()},
+            "image_side": {"ipc_points": len(side.ipc), "ipc_offset_mm": side.ipc_offset_mm,
+                           "automatic_marker_errors_mm": None if side.marker_errors_mm is None
+                           else side.marker_errors_mm.tolist(), "seconds": side.seconds,
+                           "warnings": list(side.warnings)},
             "seconds": self.seconds,
         }
 
 
-def run_demo(trials=20, seed=0, bone="right-tibia", target_cr_tre_mm=PAPER_TRE_MM["CR"][0], progress=None):
-    """Simulate ``trials`` registrations on a virtual patient made from a shipped bone mesh.
-
-    The marker placement error is set so that the CR's mean TRE is the paper's 1.33 mm; everything else
-    (probe noise 0.25 mm, 8 sub-areas x 5 points, 4 targets on the osteotomy cut) follows the paper.
+def run_demo(trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr_tre_mm=PAPER_TRE_MM["CR"][0],
+             progress=None):
+    """Run the demo; see the module docstring.
 
     Args:
-        progress: optional callable ``progress(done, total)`` called after each trial.
+        trials: number of simulated registrations (>= 1).
+        image_source: 'ct' (phantom CT, segmentation, automatic markers) or 'mesh' (IPC sampled on the mesh).
+        progress: optional callable ``progress(step, done, total)`` for a progress bar.
     """
     if trials < 1:
         raise ValueError(f"trials = {trials}: run at least 1 trial")
+    if image_source not in ("ct", "mesh"):
+        raise ValueError(f"image source {image_source!r}: use 'ct' or 'mesh'")
+    report = progress or (lambda step, done, total: None)
     clock = time.perf_counter()
     vertices, triangles = read_surface_mesh(bone_mesh_path(bone), untagged_space="RAS")
     patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
                                        BONES[bone]["medial"], seed=seed)
     marker_fle = patient.marker_fle_for_cr_tre(target_cr_tre_mm, seed=seed)
     setup_seconds = time.perf_counter() - clock
-    logger.info("virtual patient ready in %.2f s, marker placement error %.2f mm", setup_seconds, marker_fle)
+    if image_source == "ct":
+        side = ct_image_side(patient, vertices, triangles, seed, report)
+        modes = ("manual", "automatic")
+    else:
+        side = ImageSide(ipc=patient.ipc, automatic_markers=None, marker_errors_mm=None, seconds={}, ipc_offset_mm=0.0)
+        modes = ("manual",)
 
-    labels = ("CR", "CR-ICP", PAPER_POLICY_LABEL, "CR-RAMSICP (rms-plateau, target-free)",
-              f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})")
-    tre = {label: np.empty(trials) for label in labels}
-    policies = ("targets", "rms-plateau", "fixed")
-    scales = {policy: np.empty(trials) for policy in policies}
+    tre = {mode: {label: np.empty(trials) for label in METHOD_LABELS} for mode in modes}
+    scales = {mode: {policy: np.empty(trials) for policy in POLICIES} for mode in modes}
     rng = np.random.default_rng(seed + 1)
     clock = time.perf_counter()
-    index = SurfaceIndex(patient.ipc)
-    registration_seconds = {"kd_tree_build": time.perf_counter() - clock, "cr": 0.0, "cr-icp": 0.0, "cr-ramsicp_sweep": 0.0}
+    index = SurfaceIndex(side.ipc)
+    seconds = {"setup": setup_seconds, "kd_tree_build": time.perf_counter() - clock, "registration": 0.0}
     for trial in range(trials):
         data = patient.simulate_trial(rng, marker_fle, PROBE_NOISE_MM)
-        common = dict(ipc=index, ppc=data.ppc, markers_image=data.markers_image, markers_patient=data.markers_patient,
-                      targets_image=data.targets_image, targets_patient=data.targets_patient)
-        for method, label in (("cr", "CR"), ("cr-icp", "CR-ICP")):
+        for mode in modes:
+            markers_image = data.markers_image if mode == "manual" else side.automatic_markers
+            common = dict(ipc=index, ppc=data.ppc, markers_image=markers_image, markers_patient=data.markers_patient,
+                          targets_image=data.targets_image, targets_patient=data.targets_patient)
             start = time.perf_counter()
-            tre[label][trial] = register(method=method, **common).tre_mm
-            registration_seconds[method] += time.perf_counter() - start
-        start = time.perf_counter()
-        swept = register(method="cr-ramsicp", sweep=True, policy="targets", **common)
-        registration_seconds["cr-ramsicp_sweep"] += time.perf_counter() - start
-        for policy, label in zip(policies, labels[2:]):
-            entry = swept.sweep[select_scale(swept.sweep, policy)]
-            tre[label][trial] = entry.tre_mm
-            scales[policy][trial] = entry.scale
-        if progress is not None:
-            progress(trial + 1, trials)
-    seconds = {"setup": setup_seconds, **registration_seconds}
-    seconds["per_trial_mean"] = (sum(registration_seconds.values()) - registration_seconds["kd_tree_build"]) / trials
-    return DemoReport(bone=bone, trials=trials, seed=seed, ipc_points=len(patient.ipc),
+            for method, label in (("cr", "CR"), ("cr-icp", "CR-ICP")):
+                tre[mode][label][trial] = register(method=method, **common).tre_mm
+            swept = register(method="cr-ramsicp", sweep=True, policy="targets", **common)
+            seconds["registration"] += time.perf_counter() - start
+            for policy, label in zip(POLICIES, METHOD_LABELS[2:]):
+                entry = swept.sweep[select_scale(swept.sweep, policy)]
+                tre[mode][label][trial] = entry.tre_mm
+                scales[mode][policy][trial] = entry.scale
+        report("registrations", trial + 1, trials)
+    seconds["per_trial_and_mode"] = seconds["registration"] / (trials * len(modes))
+    return DemoReport(bone=bone, image_source=image_source, trials=trials, seed=seed, ipc_points=len(side.ipc),
                       probe_points=len(data.ppc), probe_noise_mm=PROBE_NOISE_MM, marker_fle_mm=marker_fle,
-                      tre_mm=tre, chosen_scales=scales, seconds=seconds)
+                      tre_mm=tre, chosen_scales=scales, image_side=side, seconds=seconds)
+
+
+def ct_image_side(patient, vertices, triangles, seed, report):
+    """Render the patient's CT phantom and run the image side on it; returns an ImageSide."""
+    seconds = {}
+    clock = time.perf_counter()
+    report("CT phantom", 0, 3)
+    volume, truth = make_ct_phantom(patient, vertices, triangles, seed=seed)
+    seconds["ct_phantom"] = time.perf_counter() - clock
+    report("segmentation and IPC", 1, 3)
+    clock = time.perf_counter()
+    segmentation = segment_bone(volume)
+    surface = bone_surface(volume, segmentation)
+    seconds["segmentation_and_ipc"] = time.perf_counter() - clock
+    report("marker spheres", 2, 3)
+    clock = time.perf_counter()
+    detection = detect_marker_spheres(volume, segmentation)
+    centres = detection.ok_centres
+    if len(centres) != 4:
+        raise RuntimeError("the demo's CT phantom did not give 4 clean marker spheres: " + "; ".join(detection.warnings))
+    order, _ = order_to_tool(centres, patient.markers_reference)
+    automatic = centres[order]
+    seconds["marker_spheres"] = time.perf_counter() - clock
+    report("marker spheres", 3, 3)
+    offsets = signed_distance_to_mesh(surface.points, vertices, triangles, np.random.default_rng(seed))
+    return ImageSide(ipc=surface.points, automatic_markers=automatic,
+                     marker_errors_mm=np.linalg.norm(automatic - truth.marker_centres, axis=1), seconds=seconds,
+                     ipc_offset_mm=float(np.median(offsets)), warnings=detection.warnings)

@@ -66,7 +66,7 @@ def load_volume(source):
         PointFileError: a file that is missing, of unknown type or unreadable (names the file and the problem).
         ValueError: a volume that is not 3-D, is empty, or has a zero spacing.
     """
-    if hasattr(source, "GetIJKToRASMatrix"):
+    if hasattr(source, "IsA"):  # a VTK object: it must be a scalar volume node
         return volume_from_node(source)
     path = Path(source)
     if not path.is_file():

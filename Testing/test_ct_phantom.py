@@ -1,0 +1,93 @@
+"""The CT phantom: geometry, intensities and ground truth as documented; the real CT runs through the pipeline."""
+
+import json
+from pathlib import Path
+
+import nibabel
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh
+from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
+from RAMSICPRegistrationLib.point_files import read_points
+from RAMSICPRegistrationLib.surface_files import read_surface_points
+from RAMSICPRegistrationLib.volume_io import load_volume, save_nrrd
+
+DATA = Path(__file__).parent / "Data"
+
+
+def test_phantom_grid_and_intensities(tibia_phantom):
+    volume, truth = tibia_phantom
+    np.testing.assert_allclose(volume.spacing, PAPER_SPACING_MM)
+    assert volume.voxels.dtype == np.int16
+    centres_ijk = np.round(volume.ras_to_ijk_points(truth.marker_centres)).astype(int)
+    for i, j, k in centres_ijk:
+        assert abs(volume.voxels[i, j, k] - HU["marker"]) < 100  # noise 25 HU
+    corner = volume.voxels[:10, :10, :10]
+    assert abs(corner.mean() - HU["air"]) < 5 and 20 < corner.std() < 30
+
+
+def test_phantom_ipc_lies_on_the_true_bone_surface(tibia_phantom):
+    volume, truth = tibia_phantom
+    surface = bone_surface(volume, segment_bone(volume))
+    offsets = signed_distance_to_mesh(surface.points, truth.bone_vertices, truth.bone_triangles,
+                                      np.random.default_rng(1))
+    assert abs(np.median(offsets)) < 0.05 and np.percentile(np.abs(offsets), 99) < 0.25
+    assert 80_000 < len(surface.points) < 200_000  # the paper's IPC: 194,568 points (both cortical walls)
+
+
+def test_phantom_writes_nrrd_and_truth(tibia_phantom, tmp_path):
+    volume, truth = tibia_phantom
+    save_nrrd(tmp_path / "phantom.nrrd", volume)
+    loaded = load_volume(tmp_path / "phantom.nrrd")
+    np.testing.assert_allclose(loaded.ijk_to_ras, volume.ijk_to_ras)
+    document = json.loads(json.dumps(truth.to_dict()))
+    np.testing.assert_allclose(document["marker_centres"], truth.marker_centres)
+    assert document["spacing_mm"] == list(PAPER_SPACING_MM)
+
+
+def test_cli_ipc_on_the_phantom(tibia_phantom, tibia_patient, tmp_path, capsys):
+    volume, truth = tibia_phantom
+    save_nrrd(tmp_path / "ct.nrrd", volume)
+    arguments = ["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp"), "--markers",
+                 str(tmp_path / "markers.mrk.json"), "--json", str(tmp_path / "ipc.json")]
+    assert main(arguments) == 0
+    markers = read_points(tmp_path / "markers.mrk.json")
+    np.testing.assert_allclose(markers.points, truth.marker_centres, atol=0.1)  # in the tool's marker order
+    assert all(label.endswith("ok") for label in markers.labels)
+    document = json.loads((tmp_path / "ipc.json").read_text())
+    assert document["ipc_points"] == len(read_surface_points(tmp_path / "ipc.vtp"))
+    assert set(document["seconds"]) == {"load", "segmentation", "surface", "marker_spheres"}
+    assert main(arguments[:4] + ["--spacing", "1.0"]) == 0
+    assert len(read_surface_points(tmp_path / "ipc.vtp")) < 0.5 * document["ipc_points"]
+    capsys.readouterr()
+
+
+def test_cli_ipc_bad_inputs(tmp_path, capsys):
+    nibabel.save(nibabel.Nifti1Image(np.zeros((5, 5), np.int16), np.eye(4)), str(tmp_path / "flat.nii"))
+    assert main(["ipc", str(tmp_path / "flat.nii"), "--out", str(tmp_path / "x.vtp")]) == 2
+    assert "expected a 3-D volume, got 2 dimension(s)" in capsys.readouterr().err
+    nibabel.save(nibabel.Nifti1Image(np.zeros((5, 5, 5), np.int16), np.eye(4)), str(tmp_path / "air.nii"))
+    assert main(["ipc", str(tmp_path / "air.nii"), "--out", str(tmp_path / "x.vtp")]) == 2
+    assert "no voxel is above the threshold of 200 HU" in capsys.readouterr().err
+    assert main(["ipc", str(tmp_path / "air.nii"), "--threshold", "bright", "--out", str(tmp_path / "x.vtp")]) == 2
+    assert "give a number of HU or 'auto'" in capsys.readouterr().err
+
+
+def test_real_ct_surface_matches_an_independent_segmentation():
+    volume = load_volume(DATA / "example_ct.nii.gz")
+    surface = bone_surface(volume, segment_bone(volume))
+    assert 30_000 < len(surface.points) < 100_000
+    # TotalSegmentator's right femur (an independent, learned segmentation): where our IPC crosses its mask's
+    # bounding box, our surface points lie on or next to the mask's boundary (within 1.5 voxels of 3 mm).
+    femur = np.asarray(nibabel.load(str(DATA / "femur_right.nii.gz")).dataobj) > 0.5
+    from scipy import ndimage
+    outside_distance = ndimage.distance_transform_edt(~femur, sampling=volume.spacing)
+    inside_distance = ndimage.distance_transform_edt(femur, sampling=volume.spacing)
+    ijk = np.round(volume.ras_to_ijk_points(surface.points)).astype(int)
+    in_box = np.all((ijk >= np.argwhere(femur).min(0) + 2) & (ijk <= np.argwhere(femur).max(0) - 2), axis=1)
+    near_femur = in_box & (outside_distance[tuple(ijk.T)] < 10.0)
+    boundary_distance = np.minimum(outside_distance, inside_distance)[tuple(ijk[near_femur].T)]
+    assert near_femur.sum() > 500
+    assert np.median(boundary_distance) <= 3.0 and np.percentile(boundary_distance, 90) <= 4.5

@@ -1,0 +1,90 @@
+"""Segmentation and IPC on analytic volumes (a sphere, a hollow cylinder) with known answers."""
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
+from RAMSICPRegistrationLib.marker_spheres import fit_sphere
+
+from conftest import analytic_volume, sphere_sdf
+
+CENTRE = np.array([10.3, -19.6, 30.2])
+
+
+@pytest.mark.parametrize("rotation_deg", [0.0, 30.0])
+def test_sphere_surface_lies_on_the_true_sphere(rotation_deg):
+    volume = analytic_volume([(sphere_sdf(CENTRE, 9.0), 1000.0)], rotation_deg=rotation_deg, noise_hu=10.0)
+    segmentation = segment_bone(volume)
+    surface = bone_surface(volume, segmentation)
+    radial = np.linalg.norm(surface.points - CENTRE, axis=1) - 9.0
+    half_voxel = 0.5 * volume.spacing.min()
+    assert np.abs(radial).max() < half_voxel  # every IPC point within half a voxel of the true surface
+    assert abs(np.median(radial)) < 0.05  # the half-max level removes the blur's bias
+    centre, radius, rms, _ = fit_sphere(surface.points)
+    assert np.linalg.norm(centre - CENTRE) < 0.02 and abs(radius - 9.0) < 0.05 and rms < 0.05
+
+
+def test_threshold_surface_is_biased_outward_by_blur_and_half_max_is_not():
+    # Cortex (1400 HU) in soft tissue (40 HU): 200 HU is 12 % of the way up the blurred edge, outside it.
+    volume = analytic_volume([(sphere_sdf(CENTRE, 9.0), 1400.0)], background_hu=40.0, blur_mm=0.5)
+    segmentation = segment_bone(volume)
+    at_threshold = bone_surface(volume, segmentation, level="threshold").points
+    at_half_max = bone_surface(volume, segmentation).points
+    assert np.median(np.linalg.norm(at_threshold - CENTRE, axis=1) - 9.0) > 0.1
+    assert abs(np.median(np.linalg.norm(at_half_max - CENTRE, axis=1) - 9.0)) < 0.05
+
+
+def _hollow_cylinder(outer=8.0, inner=5.0):
+    axis_point = CENTRE[:2]
+
+    def outer_sdf(points):
+        return np.linalg.norm(points[..., :2] - axis_point, axis=-1) - outer
+
+    def inner_sdf(points):
+        return np.linalg.norm(points[..., :2] - axis_point, axis=-1) - inner
+
+    return [(outer_sdf, 1400.0), (inner_sdf, -40.0)]  # cortex, then fatty marrow inside it
+
+
+def test_cylinder_cavity_is_filled_unless_asked_to_keep_it():
+    volume = analytic_volume(_hollow_cylinder(), size_mm=(30.0, 30.0, 40.0), noise_hu=20.0)
+    segmentation = segment_bone(volume)
+    outer = bone_surface(volume, segmentation).points
+    radius = np.linalg.norm(outer[:, :2] - CENTRE[:2], axis=1)
+    assert np.abs(radius - 8.0).max() < 0.5 * volume.spacing.max()
+    with_cavity = bone_surface(volume, segmentation, fill_cavities=False).points
+    inner_radius = np.linalg.norm(with_cavity[:, :2] - CENTRE[:2], axis=1)
+    assert np.sum(np.abs(inner_radius - 5.0) < 0.5) > 0.3 * len(with_cavity)  # the marrow wall is there
+
+
+def test_bone_is_the_largest_object_and_the_rest_are_candidates():
+    shapes = [(sphere_sdf(CENTRE, 10.0), 1200.0), (sphere_sdf(CENTRE + (0, 0, 16.0), 3.0), 800.0)]
+    segmentation = segment_bone(analytic_volume(shapes, size_mm=(40.0, 40.0, 50.0)))
+    bone = segmentation.bone_mask
+    assert len(segmentation.object_labels) == 1
+    volume_mm3 = bone.sum() * 0.5 * 0.5 * 0.625
+    assert volume_mm3 == pytest.approx(4 / 3 * np.pi * 10.0**3, rel=0.03)
+
+
+def test_automatic_threshold_splits_tissue_and_bone():
+    values = np.concatenate([np.random.default_rng(0).normal(40, 20, 50000),
+                             np.random.default_rng(1).normal(1200, 60, 20000)])
+    assert 200 < otsu_threshold(values) < 1000
+    volume = analytic_volume([(sphere_sdf(CENTRE, 9.0), 1000.0)], background_hu=40.0, noise_hu=10.0)
+    assert 300 < segment_bone(volume, "auto").threshold_hu < 800
+
+
+def test_no_voxel_above_threshold_says_what_to_change():
+    volume = analytic_volume([(sphere_sdf(CENTRE, 9.0), 100.0)], size_mm=(20.0, 20.0, 20.0))
+    with pytest.raises(ValueError, match="no voxel is above the threshold of 200 HU .* lower the threshold"):
+        segment_bone(volume)
+    with pytest.raises(ValueError, match="give a number of HU or 'auto'"):
+        segment_bone(volume, threshold_hu="high")
+
+
+def test_resampling_keeps_one_point_per_cell():
+    grid = np.stack(np.meshgrid(np.arange(0, 10, 0.1), np.arange(0, 10, 0.1), [0.0], indexing="ij"), -1).reshape(-1, 3)
+    thinned = resample_points(grid + 0.001, 1.0)
+    assert len(thinned) == 100  # a 10 x 10 mm sheet, one point per 1 mm cell
+    with pytest.raises(ValueError, match="give a positive number"):
+        resample_points(grid, 0.0)

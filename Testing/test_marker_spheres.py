@@ -1,0 +1,103 @@
+"""Automatic marker-sphere centres: known centres on analytic volumes and the CT phantom, defects, counts."""
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.ct_segmentation import segment_bone
+from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
+from RAMSICPRegistrationLib.package_data import tool_marker_geometry
+from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis
+
+from conftest import analytic_volume, sphere_sdf
+
+RADIUS = 5.75
+
+
+def _tool_in_image():
+    pose = make_transform(rotation_about_axis((0.2, 1.0, 0.3), np.radians(70.0)), (15.0, -10.0, 20.0))
+    return apply_transform(pose, tool_marker_geometry())
+
+
+def _body_and_spheres(centres, sphere_shapes=None):
+    """A 'bone' (a big sphere, the largest object) plus marker spheres at ``centres``, 0.5 x 0.5 x 0.625 mm."""
+    middle = centres.mean(axis=0)
+    bone = (sphere_sdf(middle + (0.0, 0.0, -75.0), 20.0), 1400.0)
+    shapes = [bone] + (sphere_shapes or [(sphere_sdf(c, RADIUS), 700.0) for c in centres])
+    low = np.minimum(centres.min(axis=0), middle + (-20, -20, -95)) - 10.0
+    high = np.maximum(centres.max(axis=0), middle + (20, 20, -55)) + 10.0
+    return analytic_volume(shapes, size_mm=high - low, centre=(low + high) / 2, noise_hu=25.0, blur_mm=0.35)
+
+
+def test_fit_sphere_known_answer_with_outliers():
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(2000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = np.array([1.0, 2.0, 3.0]) + RADIUS * directions + rng.normal(scale=0.02, size=(2000, 3))
+    points[:100] = np.array([1.0, 2.0, 3.0]) + 2.0 * directions[:100]  # a post: 5 % of points well inside
+    centre, radius, rms, keep = fit_sphere(points)
+    assert np.linalg.norm(centre - (1.0, 2.0, 3.0)) < 0.005 and abs(radius - RADIUS) < 0.005
+    assert not keep[:100].any() and rms < 0.03
+
+
+def test_four_spheres_found_to_0_1_mm_in_tool_order():
+    truth = _tool_in_image()
+    volume = _body_and_spheres(truth)
+    detection = detect_marker_spheres(volume, segment_bone(volume))
+    assert detection.warnings == () and len(detection.ok_centres) == 4
+    order, fre = order_to_tool(detection.ok_centres, tool_marker_geometry())
+    errors = np.linalg.norm(detection.ok_centres[order] - truth, axis=1)
+    assert errors.max() < 0.1 and fre < 0.1
+    assert all(abs(sphere.radius_mm - RADIUS) < 0.15 for sphere in detection.spheres)
+
+
+def test_partial_and_deformed_spheres_are_flagged_not_used():
+    truth = _tool_in_image()
+    cut_normal = np.array([0.0, 0.0, 1.0])
+
+    def partial(points, centre=truth[1]):
+        return np.maximum(np.linalg.norm(points - centre, axis=-1) - RADIUS, (points - centre) @ cut_normal - 1.75)
+
+    def deformed(points, centre=truth[2]):
+        offset = points - centre
+        offset[..., 0] /= 1.25  # stretched along x
+        return np.linalg.norm(offset, axis=-1) - RADIUS
+
+    shapes = [(sphere_sdf(truth[0], RADIUS), 700.0), (partial, 700.0), (deformed, 700.0),
+              (sphere_sdf(truth[3], RADIUS), 700.0)]
+    volume = _body_and_spheres(truth, shapes)
+    detection = detect_marker_spheres(volume, segment_bone(volume))
+    status = {tuple(np.round(sphere.centre)): sphere.status for sphere in detection.spheres}
+    found = {i: status[min(status, key=lambda c: np.linalg.norm(np.array(c) - truth[i]))] for i in range(4)}
+    assert found == {0: "ok", 1: "partial", 2: "deformed", 3: "ok"}
+    assert len(detection.ok_centres) == 2
+    assert any("is partial" in warning for warning in detection.warnings)
+    assert any("only 2 of 4 spheres are clean" in warning for warning in detection.warnings)
+
+
+@pytest.mark.parametrize("count", [3, 5])
+def test_wrong_number_of_spheres_is_a_warning_that_says_what_to_do(count):
+    truth = _tool_in_image()
+    centres = truth[:3] if count == 3 else np.vstack((truth, truth[0] + (0.0, 0.0, 30.0)))
+    volume = _body_and_spheres(centres)
+    detection = detect_marker_spheres(volume, segment_bone(volume))
+    assert any(f"found {count} marker-sphere candidates" in warning and "expected 4" in warning
+               for warning in detection.warnings)
+
+
+def test_order_to_tool_undoes_a_shuffle():
+    truth = _tool_in_image()
+    shuffled = truth[[2, 0, 3, 1]]
+    order, fre = order_to_tool(shuffled, tool_marker_geometry())
+    np.testing.assert_allclose(shuffled[order], truth, atol=1e-9)
+    assert fre < 1e-6
+    with pytest.raises(ValueError, match="3 centres for 4 tool markers"):
+        order_to_tool(truth[:3], tool_marker_geometry())
+
+
+def test_tibia_phantom_markers_and_ipc(tibia_phantom, tibia_patient):
+    volume, truth = tibia_phantom
+    segmentation = segment_bone(volume)
+    detection = detect_marker_spheres(volume, segmentation)
+    order, _ = order_to_tool(detection.ok_centres, tibia_patient.markers_reference)
+    errors = np.linalg.norm(detection.ok_centres[order] - truth.marker_centres, axis=1)
+    assert errors.max() < 0.1

@@ -1,0 +1,119 @@
+"""CT loading: NRRD and NIfTI geometry converted once to RAS, Slicer volume nodes, and bad volumes."""
+
+import nibabel
+import nrrd
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.point_files import PointFileError
+from RAMSICPRegistrationLib.transforms import rotation_about_axis
+from RAMSICPRegistrationLib.volume_io import CTVolume, check_volume, load_volume, save_nrrd
+
+VOXELS = np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6)
+
+
+def _oblique_ijk_to_ras():
+    matrix = np.eye(4)
+    matrix[:3, :3] = rotation_about_axis((1.0, 2.0, 0.5), np.radians(25.0)) * np.array([0.5, 0.5, 0.625])
+    matrix[:3, 3] = (-12.0, 40.0, 7.5)
+    return matrix
+
+
+def test_nrrd_in_lps_is_read_as_ras_by_hand(tmp_path):
+    # Origin (10, 20, 30) LPS with axes L, P, S of 0.5, 0.5, 0.625 mm: voxel (2, 3, 4) is at
+    # LPS (11, 21.5, 32.5), that is RAS (-11, -21.5, 32.5).
+    header = {"space": "left-posterior-superior", "space directions": np.diag([0.5, 0.5, 0.625]),
+              "space origin": np.array([10.0, 20.0, 30.0])}
+    nrrd.write(str(tmp_path / "ct.nrrd"), VOXELS, header, index_order="F")
+    volume = load_volume(tmp_path / "ct.nrrd")
+    np.testing.assert_allclose(volume.ijk_to_ras_points([[2, 3, 4]]), [[-11.0, -21.5, 32.5]])
+    np.testing.assert_array_equal(volume.voxels, VOXELS)
+    np.testing.assert_allclose(volume.spacing, [0.5, 0.5, 0.625])
+
+
+def test_nrrd_in_ras_space(tmp_path):
+    header = {"space": "right-anterior-superior", "space directions": np.diag([1.0, 2.0, 3.0]),
+              "space origin": np.array([1.0, 2.0, 3.0])}
+    nrrd.write(str(tmp_path / "ras.nrrd"), VOXELS, header, index_order="F")
+    np.testing.assert_allclose(load_volume(tmp_path / "ras.nrrd").ijk_to_ras_points([[1, 1, 1]]), [[2.0, 4.0, 6.0]])
+
+
+def test_save_and_load_keep_an_oblique_geometry(tmp_path):
+    volume = CTVolume(voxels=VOXELS, ijk_to_ras=_oblique_ijk_to_ras())
+    save_nrrd(tmp_path / "oblique.nrrd", volume)
+    loaded = load_volume(tmp_path / "oblique.nrrd")
+    np.testing.assert_allclose(loaded.ijk_to_ras, volume.ijk_to_ras, atol=1e-12)
+    np.testing.assert_array_equal(loaded.voxels, VOXELS)
+    ras = np.array([[3.0, -7.0, 11.0]])
+    np.testing.assert_allclose(loaded.ijk_to_ras_points(loaded.ras_to_ijk_points(ras)), ras)
+
+
+@pytest.mark.parametrize("name", ["ct.nii", "ct.nii.gz"])
+def test_nifti_affine_is_ras(tmp_path, name):
+    affine = _oblique_ijk_to_ras()
+    nibabel.save(nibabel.Nifti1Image(VOXELS, affine), str(tmp_path / name))
+    volume = load_volume(tmp_path / name)
+    np.testing.assert_allclose(volume.ijk_to_ras, affine, atol=1e-5)  # NIfTI stores float32
+    np.testing.assert_array_equal(volume.voxels, VOXELS)
+
+
+def test_the_shipped_real_ct_geometry():
+    from pathlib import Path
+
+    volume = load_volume(Path(__file__).parent / "Data" / "example_ct.nii.gz")
+    assert volume.voxels.shape == (122, 101, 112)
+    np.testing.assert_allclose(volume.spacing, 3.0)
+    np.testing.assert_allclose(volume.ijk_to_ras_points([[0, 0, 0]]), [[-177.956, 11.319, 94.302]], atol=1e-3)
+
+
+@pytest.mark.parametrize("voxels, matrix, message", [
+    (np.zeros((4, 5)), np.eye(4), "expected a 3-D volume, got 2 dimension(s)"),
+    (np.zeros((4, 5, 6, 2)), np.eye(4), "expected a 3-D volume, got 4 dimension(s)"),
+    (np.zeros((4, 1, 6)), np.eye(4), "is empty or flat"),
+    (np.zeros((4, 5, 6)), np.diag([1.0, 0.0, 1.0, 1.0]), "voxel spacing [1.0, 0.0, 1.0] mm has a zero"),
+    (np.zeros((4, 5, 6)), np.full((4, 4), np.nan), "must be a finite 4x4 matrix"),
+])
+def test_bad_volumes_say_what_to_change(voxels, matrix, message):
+    with pytest.raises(ValueError) as error:
+        check_volume(voxels, matrix)
+    assert message in str(error.value)
+
+
+def test_bad_volume_files_name_the_file(tmp_path):
+    header = {"space": "left-posterior-superior", "space directions": np.diag([0.5, 0.0, 0.625]),
+              "space origin": np.zeros(3)}
+    nrrd.write(str(tmp_path / "zero.nrrd"), VOXELS, header, index_order="F")
+    with pytest.raises(PointFileError, match="zero.nrrd: voxel spacing .* has a zero"):
+        load_volume(tmp_path / "zero.nrrd")
+    (tmp_path / "broken.nii.gz").write_bytes(b"not a nifti")
+    with pytest.raises(PointFileError, match="broken.nii.gz: cannot read as a volume"):
+        load_volume(tmp_path / "broken.nii.gz")
+    with pytest.raises(PointFileError, match="unknown volume type"):
+        load_volume(__file__)
+    with pytest.raises(PointFileError, match="no such file"):
+        load_volume(tmp_path / "missing.nrrd")
+
+
+def test_slicer_volume_node_gives_the_same_volume():
+    slicer = pytest.importorskip("slicer", reason="slicer-core needs Python >= 3.10")
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    scene = slicer.vtkMRMLScene()
+    node = scene.AddNewNodeByClass("vtkMRMLScalarVolumeNode", "CT")
+    image = vtkImageData()
+    image.SetDimensions(*VOXELS.shape)
+    image.GetPointData().SetScalars(numpy_to_vtk(VOXELS.transpose(2, 1, 0).ravel(), deep=True))
+    node.SetAndObserveImageData(image)
+    matrix = vtkMatrix4x4()
+    oblique = _oblique_ijk_to_ras()
+    for row in range(4):
+        for column in range(4):
+            matrix.SetElement(row, column, oblique[row, column])
+    node.SetIJKToRASMatrix(matrix)
+    volume = load_volume(node)
+    np.testing.assert_array_equal(volume.voxels, VOXELS)
+    np.testing.assert_allclose(volume.ijk_to_ras, oblique, atol=1e-12)
+    with pytest.raises(TypeError, match="expected a vtkMRMLScalarVolumeNode"):
+        load_volume(scene.AddNewNodeByClass("vtkMRMLLinearTransformNode"))
