@@ -1,0 +1,98 @@
+"""Speed of the image side: a 512 x 512 x 400 CT at 0.5 mm -> IPC plus marker-sphere centres.
+
+The tibia CT phantom (its reference body included) is placed in a 512 x 512 x 400 volume of noisy air, the size
+of a C-arm CT at the paper's resolution. Each step is timed (median of the repeats) and shown as a share of the
+whole; beside it, in the same run, VTK's vtkMarchingCubes over the whole uncropped volume, the route without
+our crop to the bone, as a ratio.
+
+Target (issue 4): IPC plus marker centres in at most 10 s.
+
+Run: python benchmarks/bench_image_side.py [--repeats N]
+"""
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.vtkCommonDataModel import vtkImageData
+from vtkmodules.vtkFiltersCore import vtkMarchingCubes
+
+from RAMSICPRegistrationLib.ct_phantom import HU, make_ct_phantom
+from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
+from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres
+from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
+from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+from RAMSICPRegistrationLib.volume_io import CTVolume
+
+TARGET_SECONDS = 10.0
+SHAPE = (512, 512, 400)
+
+
+def big_ct():
+    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
+    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    phantom, _ = make_ct_phantom(patient, vertices, triangles)
+    rng = np.random.default_rng(0)
+    voxels = (HU["air"] + rng.normal(scale=25.0, size=SHAPE)).astype(np.int16)
+    offset = (np.array(SHAPE) - phantom.voxels.shape) // 2
+    voxels[tuple(slice(o, o + n) for o, n in zip(offset, phantom.voxels.shape))] = phantom.voxels
+    ijk_to_ras = phantom.ijk_to_ras.copy()
+    ijk_to_ras[:3, 3] -= ijk_to_ras[:3, :3] @ offset
+    return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras)
+
+
+def image_side(volume):
+    times = {}
+    start = time.perf_counter()
+    segmentation = segment_bone(volume)
+    times["denoise + threshold + components"] = time.perf_counter() - start
+    start = time.perf_counter()
+    surface = bone_surface(volume, segmentation)
+    times["bone surface (IPC)"] = time.perf_counter() - start
+    start = time.perf_counter()
+    detection = detect_marker_spheres(volume, segmentation)
+    times["marker spheres"] = time.perf_counter() - start
+    return times, len(surface.points), len(detection.ok_centres)
+
+
+def uncropped_marching_cubes(smoothed, level):
+    data = vtkImageData()
+    data.SetDimensions(*smoothed.shape)
+    data.GetPointData().SetScalars(numpy_to_vtk(np.ascontiguousarray(smoothed.transpose(2, 1, 0)).ravel(), deep=True))
+    cubes = vtkMarchingCubes()
+    cubes.SetInputData(data)
+    cubes.SetValue(0, level)
+    cubes.ComputeNormalsOff()
+    cubes.Update()
+    return cubes.GetOutput().GetNumberOfPoints()
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    arguments = parser.parse_args()
+    volume = big_ct()
+    print(f"CT {' x '.join(map(str, volume.voxels.shape))} voxels of 0.5 x 0.5 x 0.625 mm, {arguments.repeats} repeats")
+    runs = [image_side(volume) for _ in range(arguments.repeats)]
+    steps = {name: statistics.median(run[0][name] for run in runs) for name in runs[0][0]}
+    total = statistics.median(sum(run[0].values()) for run in runs)
+    smoothed = segment_bone(volume).smoothed
+    start = time.perf_counter()
+    uncropped_points = uncropped_marching_cubes(smoothed, 700.0)
+    uncropped = time.perf_counter() - start
+    print(f"\n{'step':<58} {'median (s)':>10} {'share / ratio':>14}")
+    for name, seconds in steps.items():
+        print(f"{name:<58} {seconds:10.2f} {seconds / total:14.2f}")
+    print(f"{'whole image side: IPC + marker centres':<58} {total:10.2f} {1.0:14.2f}")
+    print(f"{'baseline: vtkMarchingCubes on the whole uncropped volume':<58} {uncropped:10.2f} "
+          f"{uncropped / steps['bone surface (IPC)']:14.2f}  (vs our bone-surface step)")
+    print(f"\nIPC {runs[0][1]:,} points, {runs[0][2]} clean marker spheres; uncropped marching cubes gave "
+          f"{uncropped_points:,} points (spheres, bracket and all)")
+    print(f"target <= {TARGET_SECONDS:.0f} s: {'met' if total <= TARGET_SECONDS else 'NOT met'} ({total:.2f} s)")
+
+
+if __name__ == "__main__":
+    main()
