@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
 
 
@@ -44,18 +43,26 @@ def tibia_index(tibia_patient):
     return SurfaceIndex(tibia_patient.ipc)
 
 
-def analytic_volume(shapes, spacing=(0.5, 0.5, 0.625), size_mm=(40.0, 40.0, 40.0), rotation_deg=0.0,
-                    background_hu=-1000.0, noise_hu=0.0, blur_mm=0.3, seed=0, centre=(10.0, -20.0, 30.0)):
+def analytic_volume(
+    shapes,
+    spacing=(0.5, 0.5, 0.625),
+    size_mm=(40.0, 40.0, 40.0),
+    rotation_deg=0.0,
+    background_hu=-1000.0,
+    noise_hu=0.0,
+    blur_mm=0.3,
+    seed=0,
+    centre=(10.0, -20.0, 30.0),
+):
     """A CT volume of analytic objects with exact partial volume, on a grid that may be rotated.
 
     ``shapes`` is a list of ``(signed_distance_function, hu)``; each function maps (..., 3) RAS points (mm) to
     a signed distance (negative inside). The grid is centred on ``centre`` (RAS), its axes turned by
     ``rotation_deg`` about (1, 1, 1) from L, P, S (an LPS-aligned scanner grid).
     """
-    from scipy import ndimage
-
     from RAMSICPRegistrationLib.transforms import rotation_about_axis
     from RAMSICPRegistrationLib.volume_io import CTVolume
+    from scipy import ndimage
 
     spacing = np.asarray(spacing, dtype=np.float64)
     shape = np.ceil(np.asarray(size_mm) / spacing).astype(int)

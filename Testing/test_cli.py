@@ -6,7 +6,6 @@ import sys
 
 import numpy as np
 import pytest
-
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.point_files import write_points
 from RAMSICPRegistrationLib.registration import register
@@ -31,27 +30,48 @@ def case_files(tmp_path_factory, tibia_patient):
 
 
 def _arguments(folder, *extra):
-    return ["register", "--ipc", str(folder / "ipc.vtp"), "--ppc", str(folder / "ppc.csv"),
-            "--markers-image", str(folder / "markers_image.mrk.json"),
-            "--markers-patient", str(folder / "markers_patient.fcsv"),
-            "--targets-image", str(folder / "targets_image.mrk.json"),
-            "--targets-patient", str(folder / "targets_patient.npy"), *extra]
+    return [
+        "register",
+        "--ipc",
+        str(folder / "ipc.vtp"),
+        "--ppc",
+        str(folder / "ppc.csv"),
+        "--markers-image",
+        str(folder / "markers_image.mrk.json"),
+        "--markers-patient",
+        str(folder / "markers_patient.fcsv"),
+        "--targets-image",
+        str(folder / "targets_image.mrk.json"),
+        "--targets-patient",
+        str(folder / "targets_patient.npy"),
+        *extra,
+    ]
 
 
-@pytest.mark.parametrize("extra, options", [
-    (["--method", "cr"], {"method": "cr"}),
-    (["--method", "cr-icp"], {"method": "cr-icp"}),
-    (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
-    (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
-])
+@pytest.mark.parametrize(
+    "extra, options",
+    [
+        (["--method", "cr"], {"method": "cr"}),
+        (["--method", "cr-icp"], {"method": "cr-icp"}),
+        (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
+        (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
+    ],
+)
 def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra, options):
     folder, ipc, trial = case_files
     output = tmp_path / "result.json"
     assert main(_arguments(folder, *extra, "--json", str(output))) == 0
     printed = capsys.readouterr().out
     document = json.loads(output.read_text())
-    expected = register(SurfaceIndex(ipc), trial.ppc, trial.markers_image, trial.markers_patient,
-                        trial.targets_image, trial.targets_patient, **options)
+    expected = register(
+        SurfaceIndex(ipc),
+        trial.ppc,
+        trial.markers_image,
+        trial.markers_patient,
+        trial.targets_image,
+        trial.targets_patient,
+        **options,
+    )
     np.testing.assert_allclose(document["reference_to_image"], expected.reference_to_image, atol=1e-9)
     assert document["tre_mm"] == pytest.approx(expected.tre_mm, abs=1e-9)
     assert document["fre_mm"] == pytest.approx(expected.fre_mm, abs=1e-9)
@@ -63,12 +83,18 @@ def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra
     assert f"TRE (eq. 11)      {expected.tre_mm:.2f} mm" in printed
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda folder: (folder / "ppc.csv").write_text("1,2,3\n4,5\n"), "ppc.csv: line 2: expected 3 numbers x y z, got 2"),
-    (lambda folder: (folder / "markers_image.mrk.json").write_text("{"), "markers_image.mrk.json: not valid JSON"),
-    (lambda folder: (folder / "ipc.vtp").write_text("<xml"), "ipc.vtp: cannot read as VTP surface"),
-    (lambda folder: (folder / "ppc.csv").write_text("1,2,3\n1,2,3\n"), "PPC (probe points): 2 point(s) given"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (
+            lambda folder: (folder / "ppc.csv").write_text("1,2,3\n4,5\n"),
+            "ppc.csv: line 2: expected 3 numbers x y z, got 2",
+        ),
+        (lambda folder: (folder / "markers_image.mrk.json").write_text("{"), "markers_image.mrk.json: not valid JSON"),
+        (lambda folder: (folder / "ipc.vtp").write_text("<xml"), "ipc.vtp: cannot read as VTP surface"),
+        (lambda folder: (folder / "ppc.csv").write_text("1,2,3\n1,2,3\n"), "PPC (probe points): 2 point(s) given"),
+    ],
+)
 def test_bad_input_exits_2_with_one_line(case_files, tmp_path, capsys, mutate, message):
     source, _, _ = case_files
     folder = tmp_path / "copy"
@@ -86,7 +112,9 @@ def test_register_rejects_half_given_targets_and_missing_files(case_files, capsy
     arguments = _arguments(folder)[:-2]
     assert main(arguments) == 2
     assert "give --targets-image and --targets-patient together" in capsys.readouterr().err
-    assert main(["register", "--ipc", "nothing.vtp", "--ppc", "a", "--markers-image", "b", "--markers-patient", "c"]) == 2
+    assert (
+        main(["register", "--ipc", "nothing.vtp", "--ppc", "a", "--markers-image", "b", "--markers-patient", "c"]) == 2
+    )
     assert "nothing.vtp: no such file" in capsys.readouterr().err
 
 
@@ -97,8 +125,9 @@ def _check_demo_document(document, trials):
             assert document["summary_mm"][mode][label]["mean"] == pytest.approx(np.mean(values))
             assert document["summary_mm"][mode][label]["sd"] == pytest.approx(np.std(values, ddof=1))
         # The paper's policy takes the minimum TRE over the sweep: never worse than the fixed L.
-        assert np.all(np.array(rows["CR-RAMSICP (L by min TRE, paper)"])
-                      <= np.array(rows["CR-RAMSICP (fixed L = 5)"]) + 1e-12)
+        assert np.all(
+            np.array(rows["CR-RAMSICP (L by min TRE, paper)"]) <= np.array(rows["CR-RAMSICP (fixed L = 5)"]) + 1e-12
+        )
 
 
 def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
@@ -127,6 +156,7 @@ def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):
 
 
 def test_console_script_module_runs():
-    completed = subprocess.run([sys.executable, "-m", "RAMSICPRegistrationLib.cli", "--version"],
-                               capture_output=True, text=True, check=True)
+    completed = subprocess.run(
+        [sys.executable, "-m", "RAMSICPRegistrationLib.cli", "--version"], capture_output=True, text=True, check=True
+    )
     assert completed.stdout.startswith("ramsicp 0.1.0")

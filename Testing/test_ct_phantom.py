@@ -5,8 +5,6 @@ from pathlib import Path
 
 import nibabel
 import numpy as np
-import pytest
-
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
@@ -31,8 +29,9 @@ def test_phantom_grid_and_intensities(tibia_phantom):
 def test_phantom_ipc_lies_on_the_true_bone_surface(tibia_phantom):
     volume, truth = tibia_phantom
     surface = bone_surface(volume, segment_bone(volume))
-    offsets = signed_distance_to_mesh(surface.points, truth.bone_vertices, truth.bone_triangles,
-                                      np.random.default_rng(1))
+    offsets = signed_distance_to_mesh(
+        surface.points, truth.bone_vertices, truth.bone_triangles, np.random.default_rng(1)
+    )
     assert abs(np.median(offsets)) < 0.05 and np.percentile(np.abs(offsets), 99) < 0.25
     assert 80_000 < len(surface.points) < 200_000  # the paper's IPC: 194,568 points (both cortical walls)
 
@@ -50,8 +49,16 @@ def test_phantom_writes_nrrd_and_truth(tibia_phantom, tmp_path):
 def test_cli_ipc_on_the_phantom(tibia_phantom, tibia_patient, tmp_path, capsys):
     volume, truth = tibia_phantom
     save_nrrd(tmp_path / "ct.nrrd", volume)
-    arguments = ["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp"), "--markers",
-                 str(tmp_path / "markers.mrk.json"), "--json", str(tmp_path / "ipc.json")]
+    arguments = [
+        "ipc",
+        str(tmp_path / "ct.nrrd"),
+        "--out",
+        str(tmp_path / "ipc.vtp"),
+        "--markers",
+        str(tmp_path / "markers.mrk.json"),
+        "--json",
+        str(tmp_path / "ipc.json"),
+    ]
     assert main(arguments) == 0
     markers = read_points(tmp_path / "markers.mrk.json")
     np.testing.assert_allclose(markers.points, truth.marker_centres, atol=0.1)  # in the tool's marker order
@@ -76,9 +83,8 @@ def test_cli_ipc_bad_inputs(tmp_path, capsys):
 
 
 def test_real_ct_surface_matches_an_independent_segmentation():
-    from scipy.spatial import cKDTree
-
     from RAMSICPRegistrationLib.ct_segmentation import iso_surface
+    from scipy.spatial import cKDTree
 
     volume = load_volume(DATA / "example_ct.nii.gz")
     surface = bone_surface(volume, segment_bone(volume))

@@ -2,11 +2,9 @@
 
 import numpy as np
 import pytest
-
+from conftest import analytic_volume, sphere_sdf
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
 from RAMSICPRegistrationLib.marker_spheres import fit_sphere
-
-from conftest import analytic_volume, sphere_sdf
 
 CENTRE = np.array([10.3, -19.6, 30.2])
 
@@ -67,8 +65,9 @@ def test_bone_is_the_largest_object_and_the_rest_are_candidates():
 
 
 def test_automatic_threshold_splits_tissue_and_bone():
-    values = np.concatenate([np.random.default_rng(0).normal(40, 20, 50000),
-                             np.random.default_rng(1).normal(1200, 60, 20000)])
+    values = np.concatenate(
+        [np.random.default_rng(0).normal(40, 20, 50000), np.random.default_rng(1).normal(1200, 60, 20000)]
+    )
     assert 200 < otsu_threshold(values) < 1000
     volume = analytic_volume([(sphere_sdf(CENTRE, 9.0), 1000.0)], background_hu=40.0, noise_hu=10.0)
     assert 300 < segment_bone(volume, "auto").threshold_hu < 800

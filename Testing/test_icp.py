@@ -2,13 +2,11 @@
 
 import numpy as np
 import pytest
-
+from conftest import ellipsoid_points
 from RAMSICPRegistrationLib.icp import MatchingRanges, icp, ramsicp
 from RAMSICPRegistrationLib.paired_point import rigid_procrustes
 from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
-
-from conftest import ellipsoid_points
 
 TRUE_POSE = make_transform(rotation_about_axis((1.0, 2.0, 3.0), np.radians(35.0)), (12.0, -7.0, 30.0))
 CR_ERROR = make_transform(rotation_about_axis((0.3, -1.0, 0.5), np.radians(1.0)), (0.4, -0.3, 0.25))
@@ -27,7 +25,9 @@ def _patient_points(points, count, seed=1):
 
 
 def _pose_error_mm(transform, points):
-    return float(np.max(np.linalg.norm(apply_transform(transform, points) - apply_transform(TRUE_POSE, points), axis=1)))
+    return float(
+        np.max(np.linalg.norm(apply_transform(transform, points) - apply_transform(TRUE_POSE, points), axis=1))
+    )
 
 
 def test_icp_recovers_known_pose_from_perturbed_start(ellipsoid):
@@ -120,7 +120,8 @@ def test_scale_below_one_or_not_finite_is_rejected(ellipsoid, scale):
 def test_max_iterations_is_reported(ellipsoid):
     points, index = ellipsoid
     ppc = _patient_points(points, 60)
-    result = icp(index, ppc, make_transform(rotation_about_axis((0, 0, 1), np.radians(10))) @ TRUE_POSE,
-                 max_iterations=2)
+    result = icp(
+        index, ppc, make_transform(rotation_about_axis((0, 0, 1), np.radians(10))) @ TRUE_POSE, max_iterations=2
+    )
     assert result.iterations == 2
     assert not result.converged

@@ -5,8 +5,18 @@ from pathlib import Path
 
 import RAMSICPRegistrationLib
 
-CORE_MODULES = ("validation", "transforms", "paired_point", "surface_index", "icp", "sweep", "metrics",
-                "constraint", "registration", "virtual_patient")
+CORE_MODULES = (
+    "validation",
+    "transforms",
+    "paired_point",
+    "surface_index",
+    "icp",
+    "sweep",
+    "metrics",
+    "constraint",
+    "registration",
+    "virtual_patient",
+)
 ALLOWED = {"numpy", "scipy", "dataclasses", "logging", "__future__"}
 
 
@@ -30,6 +40,9 @@ def test_no_print_in_library_code():
         if path.name == "cli.py":
             continue  # the command line owns the console
         tree = ast.parse(path.read_text())
-        calls = [node for node in ast.walk(tree) if isinstance(node, ast.Call)
-                 and isinstance(node.func, ast.Name) and node.func.id == "print"]
+        calls = [
+            node
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print"
+        ]
         assert not calls, f"{path.name} calls print()"

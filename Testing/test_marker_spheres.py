@@ -2,13 +2,11 @@
 
 import numpy as np
 import pytest
-
+from conftest import analytic_volume, sphere_sdf
 from RAMSICPRegistrationLib.ct_segmentation import segment_bone
 from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
 from RAMSICPRegistrationLib.package_data import tool_marker_geometry
 from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis
-
-from conftest import analytic_volume, sphere_sdf
 
 RADIUS = 5.75
 
@@ -62,8 +60,12 @@ def test_partial_and_deformed_spheres_are_flagged_not_used():
         offset[..., 0] /= 1.25  # stretched along x
         return np.linalg.norm(offset, axis=-1) - RADIUS
 
-    shapes = [(sphere_sdf(truth[0], RADIUS), 700.0), (partial, 700.0), (deformed, 700.0),
-              (sphere_sdf(truth[3], RADIUS), 700.0)]
+    shapes = [
+        (sphere_sdf(truth[0], RADIUS), 700.0),
+        (partial, 700.0),
+        (deformed, 700.0),
+        (sphere_sdf(truth[3], RADIUS), 700.0),
+    ]
     volume = _body_and_spheres(truth, shapes)
     detection = detect_marker_spheres(volume, segment_bone(volume))
     status = {tuple(np.round(sphere.centre)): sphere.status for sphere in detection.spheres}
@@ -80,8 +82,10 @@ def test_wrong_number_of_spheres_is_a_warning_that_says_what_to_do(count):
     centres = truth[:3] if count == 3 else np.vstack((truth, truth[0] + (0.0, 0.0, 30.0)))
     volume = _body_and_spheres(centres)
     detection = detect_marker_spheres(volume, segment_bone(volume))
-    assert any(f"found {count} marker-sphere candidates" in warning and "expected 4" in warning
-               for warning in detection.warnings)
+    assert any(
+        f"found {count} marker-sphere candidates" in warning and "expected 4" in warning
+        for warning in detection.warnings
+    )
 
 
 def test_order_to_tool_undoes_a_shuffle():

@@ -2,11 +2,9 @@
 
 import numpy as np
 import pytest
-
+from conftest import random_transform
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
-
-from conftest import random_transform
 
 
 def test_recovers_known_transform_to_1e9(rng):
@@ -66,19 +64,22 @@ def test_inverse_fit_is_inverse_transform(rng):
 GOOD = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0], [0.0, 40.0, 0.0], [0.0, 0.0, 30.0]])
 
 
-@pytest.mark.parametrize("source, target, weights, message", [
-    (GOOD[:2], GOOD[:2], None, "2 point(s) given, at least 3 needed"),
-    (GOOD, GOOD[:3], None, "source has 4 points but target has 3"),
-    (GOOD[:, :2], GOOD[:, :2], None, "expected an (N, 3) array"),
-    (np.where(np.eye(4, 3, dtype=bool), np.nan, GOOD), GOOD, None, "point(s) 0, 1, 2 contain NaN or infinity"),
-    (GOOD, np.where(np.eye(4, 3, k=-3, dtype=bool), np.inf, GOOD), None, "target: point(s) 3 contain NaN"),
-    (np.vstack((GOOD[:3], GOOD[2])), GOOD, None, "points 2 and 3 are the same point"),
-    (np.array([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], float), GOOD, None, "collinear"),
-    (np.array([[0, 0, 0], [10, 0, 0], [20, 0.001, 0], [30, 0, 0]], float), GOOD, None, "collinear"),
-    (GOOD, GOOD, [1, 1, -1, 1], "weights: expected 4 finite non-negative"),
-    (GOOD, GOOD, [1, 1, 0, 0], "at least 3 points need a positive weight"),
-    ("abc", GOOD, None, "cannot read as numbers"),
-])
+@pytest.mark.parametrize(
+    "source, target, weights, message",
+    [
+        (GOOD[:2], GOOD[:2], None, "2 point(s) given, at least 3 needed"),
+        (GOOD, GOOD[:3], None, "source has 4 points but target has 3"),
+        (GOOD[:, :2], GOOD[:, :2], None, "expected an (N, 3) array"),
+        (np.where(np.eye(4, 3, dtype=bool), np.nan, GOOD), GOOD, None, "point(s) 0, 1, 2 contain NaN or infinity"),
+        (GOOD, np.where(np.eye(4, 3, k=-3, dtype=bool), np.inf, GOOD), None, "target: point(s) 3 contain NaN"),
+        (np.vstack((GOOD[:3], GOOD[2])), GOOD, None, "points 2 and 3 are the same point"),
+        (np.array([[0, 0, 0], [10, 0, 0], [20, 0, 0], [30, 0, 0]], float), GOOD, None, "collinear"),
+        (np.array([[0, 0, 0], [10, 0, 0], [20, 0.001, 0], [30, 0, 0]], float), GOOD, None, "collinear"),
+        (GOOD, GOOD, [1, 1, -1, 1], "weights: expected 4 finite non-negative"),
+        (GOOD, GOOD, [1, 1, 0, 0], "at least 3 points need a positive weight"),
+        ("abc", GOOD, None, "cannot read as numbers"),
+    ],
+)
 def test_bad_input_raises_clear_message(source, target, weights, message):
     with pytest.raises(ValueError) as error:
         fit_rigid_transform(source, target, weights=weights)

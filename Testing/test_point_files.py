@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-
 from RAMSICPRegistrationLib.point_files import PointFileError, read_points, write_points
 
 POINTS_RAS = np.array([[12.5, -40.25, 101.0], [-3.0, 7.125, -0.5], [100.0, 200.0, 300.0]])
@@ -30,26 +29,40 @@ def test_markups_json_is_written_in_lps_like_slicer(tmp_path):
 
 def test_markups_json_in_ras_is_read_as_ras(tmp_path):
     path = tmp_path / "ras.mrk.json"
-    document = {"markups": [{"type": "Fiducial", "coordinateSystem": "RAS", "controlPoints": [
-        {"label": "M1", "position": [1.0, 2.0, 3.0]},
-        {"label": "skip", "position": [0.0, 0.0, 0.0], "positionStatus": "undefined"}]}]}
+    document = {
+        "markups": [
+            {
+                "type": "Fiducial",
+                "coordinateSystem": "RAS",
+                "controlPoints": [
+                    {"label": "M1", "position": [1.0, 2.0, 3.0]},
+                    {"label": "skip", "position": [0.0, 0.0, 0.0], "positionStatus": "undefined"},
+                ],
+            }
+        ]
+    }
     path.write_text(json.dumps(document))
     read = read_points(path)
     np.testing.assert_array_equal(read.points, [[1.0, 2.0, 3.0]])
     assert read.labels == ("M1",)
 
 
-@pytest.mark.parametrize("header, expected", [
-    ("# CoordinateSystem = 0", [1.0, 2.0, 3.0]),  # Slicer < 4.11: 0 is RAS
-    ("# CoordinateSystem = RAS", [1.0, 2.0, 3.0]),
-    ("# CoordinateSystem = 1", [-1.0, -2.0, 3.0]),
-    ("# CoordinateSystem = LPS", [-1.0, -2.0, 3.0]),
-])
+@pytest.mark.parametrize(
+    "header, expected",
+    [
+        ("# CoordinateSystem = 0", [1.0, 2.0, 3.0]),  # Slicer < 4.11: 0 is RAS
+        ("# CoordinateSystem = RAS", [1.0, 2.0, 3.0]),
+        ("# CoordinateSystem = 1", [-1.0, -2.0, 3.0]),
+        ("# CoordinateSystem = LPS", [-1.0, -2.0, 3.0]),
+    ],
+)
 def test_fcsv_coordinate_system_header(tmp_path, header, expected):
     path = tmp_path / "f.fcsv"
-    path.write_text(f"# Markups fiducial file version = 4.10\n{header}\n"
-                    "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID\n"
-                    "vtkMRMLMarkupsFiducialNode_0,1,2,3,0,0,0,1,1,1,0,F-1,,\n")
+    path.write_text(
+        f"# Markups fiducial file version = 4.10\n{header}\n"
+        "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID\n"
+        "vtkMRMLMarkupsFiducialNode_0,1,2,3,0,0,0,1,1,1,0,F-1,,\n"
+    )
     np.testing.assert_array_equal(read_points(path).points, [expected])
 
 
@@ -65,18 +78,25 @@ def test_untagged_files_follow_the_given_space(tmp_path):
     np.testing.assert_array_equal(read_points(path, untagged_space="LPS").points, POINTS_RAS * [-1, -1, 1])
 
 
-@pytest.mark.parametrize("name, content, problem", [
-    ("bad.mrk.json", "{not json", "not valid JSON"),
-    ("nomarkups.mrk.json", '{"a": 1}', "no 'markups' list"),
-    ("empty.mrk.json", '{"markups": [{"controlPoints": []}]}', "no defined control points"),
-    ("short.mrk.json", '{"markups": [{"controlPoints": [{"position": [1, 2]}]}]}', "control point 0 has no 3-number"),
-    ("two.csv", "1,2\n", "line 1: expected 3 numbers x y z, got 2"),
-    ("words.csv", "1,2,3\n4,five,6\n", "line 2: expected 3 numbers"),
-    ("nan.csv", "1,2,3\nnan,1,1\n", "point(s) 1 contain NaN"),
-    ("empty.txt", "# nothing\n", "holds no points"),
-    ("bad.fcsv", "# columns = id,x,y,z\n1,2,abc,4\n", "line 2: expected id,x,y,z"),
-    ("points.xyz", "1 2 3\n", "unknown point file type"),
-])
+@pytest.mark.parametrize(
+    "name, content, problem",
+    [
+        ("bad.mrk.json", "{not json", "not valid JSON"),
+        ("nomarkups.mrk.json", '{"a": 1}', "no 'markups' list"),
+        ("empty.mrk.json", '{"markups": [{"controlPoints": []}]}', "no defined control points"),
+        (
+            "short.mrk.json",
+            '{"markups": [{"controlPoints": [{"position": [1, 2]}]}]}',
+            "control point 0 has no 3-number",
+        ),
+        ("two.csv", "1,2\n", "line 1: expected 3 numbers x y z, got 2"),
+        ("words.csv", "1,2,3\n4,five,6\n", "line 2: expected 3 numbers"),
+        ("nan.csv", "1,2,3\nnan,1,1\n", "point(s) 1 contain NaN"),
+        ("empty.txt", "# nothing\n", "holds no points"),
+        ("bad.fcsv", "# columns = id,x,y,z\n1,2,abc,4\n", "line 2: expected id,x,y,z"),
+        ("points.xyz", "1 2 3\n", "unknown point file type"),
+    ],
+)
 def test_malformed_files_name_file_and_problem(tmp_path, name, content, problem):
     path = tmp_path / name
     path.write_text(content)

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from RAMSICPRegistrationLib.registration import register
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
 
@@ -12,8 +11,13 @@ def _exact_case(patient, rng, marker_shift=(0.0, 0.0, 0.0), count=60):
     image_to_reference = invert_transform(patient.reference_to_image)
     ppc = apply_transform(image_to_reference, patient.ipc[rng.choice(len(patient.ipc), count, replace=False)])
     targets_patient = apply_transform(image_to_reference, patient.targets_image)
-    return dict(ppc=ppc, markers_image=patient.markers_image + marker_shift, markers_patient=patient.markers_reference,
-                targets_image=patient.targets_image, targets_patient=targets_patient)
+    return dict(
+        ppc=ppc,
+        markers_image=patient.markers_image + marker_shift,
+        markers_patient=patient.markers_reference,
+        targets_image=patient.targets_image,
+        targets_patient=targets_patient,
+    )
 
 
 def test_cr_with_a_known_marker_shift_has_that_tre(tibia_patient, tibia_index, rng):
@@ -37,15 +41,33 @@ def test_fine_registration_removes_a_known_cr_error(tibia_patient, tibia_index, 
 
 def test_sweep_reports_every_l_and_the_chosen_one(tibia_patient, tibia_index):
     trial = tibia_patient.simulate_trial(np.random.default_rng(4), marker_fle_mm=1.0)
-    result = register(tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, trial.targets_image,
-                      trial.targets_patient, method="cr-ramsicp", sweep=True)
+    result = register(
+        tibia_index,
+        trial.ppc,
+        trial.markers_image,
+        trial.markers_patient,
+        trial.targets_image,
+        trial.targets_patient,
+        method="cr-ramsicp",
+        sweep=True,
+    )
     assert [entry.scale for entry in result.sweep] == pytest.approx(np.arange(1.0, 5.01, 0.2))
     assert result.scale_policy == "targets"
     assert result.tre_mm == pytest.approx(min(entry.tre_mm for entry in result.sweep))
     assert any("for evaluation" in warning for warning in result.warnings)
     document = result.to_dict()
-    for key in ("method", "reference_to_image", "fre_mm", "ppc_rms_mm", "tre_mm", "scale", "iterations",
-                "residuals_mm", "sweep", "warnings"):
+    for key in (
+        "method",
+        "reference_to_image",
+        "fre_mm",
+        "ppc_rms_mm",
+        "tre_mm",
+        "scale",
+        "iterations",
+        "residuals_mm",
+        "sweep",
+        "warnings",
+    ):
         assert key in document
     no_targets = register(tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, sweep=True)
     assert no_targets.scale_policy == "rms-plateau" and no_targets.tre_mm is None
@@ -72,19 +94,25 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
     assert any("lie far from the bone surface" in warning and " 7 (" in warning for warning in result.warnings)
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp"),
-    ({"method": "cr-icp", "sweep": True}, "apply to cr-ramsicp only"),
-    ({"ppc": np.zeros((2, 3))}, "PPC (probe points): 2 point(s) given, at least 3 needed"),
-    ({"ppc": np.outer(np.arange(5.0), (1.0, 2.0, 3.0))}, "PPC (probe points): the points are (nearly) collinear"),
-    ({"markers_image": np.zeros((2, 3))}, "markers in the image: 2 point(s) given, at least 3 needed"),
-    ({"markers_image": np.eye(3)}, "markers in the patient (reference) has 4 points but markers in the image has 3"),
-    ({"targets_image": np.zeros((4, 3))}, "give them in both frames"),
-    ({"targets_image": np.zeros((3, 3)), "targets_patient": np.zeros((4, 3))}, "3 in the image"),
-    ({"policy": "targets"}, "ask for the sweep"),
-    ({"sweep": True, "policy": "targets"}, "needs target points"),
-    ({"scale": 0.5}, "must be a finite number >= 1"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp"),
+        ({"method": "cr-icp", "sweep": True}, "apply to cr-ramsicp only"),
+        ({"ppc": np.zeros((2, 3))}, "PPC (probe points): 2 point(s) given, at least 3 needed"),
+        ({"ppc": np.outer(np.arange(5.0), (1.0, 2.0, 3.0))}, "PPC (probe points): the points are (nearly) collinear"),
+        ({"markers_image": np.zeros((2, 3))}, "markers in the image: 2 point(s) given, at least 3 needed"),
+        (
+            {"markers_image": np.eye(3)},
+            "markers in the patient (reference) has 4 points but markers in the image has 3",
+        ),
+        ({"targets_image": np.zeros((4, 3))}, "give them in both frames"),
+        ({"targets_image": np.zeros((3, 3)), "targets_patient": np.zeros((4, 3))}, "3 in the image"),
+        ({"policy": "targets"}, "ask for the sweep"),
+        ({"sweep": True, "policy": "targets"}, "needs target points"),
+        ({"scale": 0.5}, "must be a finite number >= 1"),
+    ],
+)
 def test_bad_requests_raise_clear_errors(tibia_patient, tibia_index, rng, change, message):
     case = _exact_case(tibia_patient, rng, count=10)
     del case["targets_image"], case["targets_patient"]

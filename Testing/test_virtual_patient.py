@@ -2,17 +2,30 @@
 
 import numpy as np
 import pytest
-
-from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
 from RAMSICPRegistrationLib.metrics import target_registration_error
+from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
 from RAMSICPRegistrationLib.virtual_patient import sample_surface
 
 
 def test_surface_samples_lie_on_triangles_with_outward_normals():
     # A unit cube's 12 triangles, wound outward: every sample has one coordinate at 0 or 1.
     vertices = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
-    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    faces = np.array(
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ]
+    )
     points, normals = sample_surface(vertices, faces, 5000, np.random.default_rng(0))
     on_face = np.isclose(points, 0.0) | np.isclose(points, 1.0)
     assert on_face.any(axis=1).all()
@@ -45,12 +58,14 @@ def test_trial_error_model(tibia_patient, tibia_index):
     noisy = tibia_patient.simulate_trial(np.random.default_rng(9), 1.0, probe_noise_mm=0.25)
     on_surface = np.vstack(tibia_patient.sub_area_points)
     from RAMSICPRegistrationLib.transforms import apply_transform
+
     clean_in_image = apply_transform(tibia_patient.reference_to_image, clean.ppc)
     assert np.min(np.linalg.norm(on_surface[None] - clean_in_image[:, None], axis=2), axis=1).max() < 1e-9
     probe_noise = np.linalg.norm(noisy.ppc - clean.ppc, axis=1)
     assert np.sqrt(np.mean(probe_noise**2)) == pytest.approx(0.25, rel=0.2)
-    marker_errors = np.concatenate([np.linalg.norm(t.markers_image - tibia_patient.markers_image, axis=1)
-                                    for t in trials])
+    marker_errors = np.concatenate(
+        [np.linalg.norm(t.markers_image - tibia_patient.markers_image, axis=1) for t in trials]
+    )
     assert np.sqrt(np.mean(marker_errors**2)) == pytest.approx(1.0, rel=0.1)
 
 

@@ -4,7 +4,6 @@ import nibabel
 import nrrd
 import numpy as np
 import pytest
-
 from RAMSICPRegistrationLib.point_files import PointFileError
 from RAMSICPRegistrationLib.transforms import rotation_about_axis
 from RAMSICPRegistrationLib.volume_io import CTVolume, check_volume, load_volume, save_nrrd
@@ -22,8 +21,11 @@ def _oblique_ijk_to_ras():
 def test_nrrd_in_lps_is_read_as_ras_by_hand(tmp_path):
     # Origin (10, 20, 30) LPS with axes L, P, S of 0.5, 0.5, 0.625 mm: voxel (2, 3, 4) is at
     # LPS (11, 21.5, 32.5), that is RAS (-11, -21.5, 32.5).
-    header = {"space": "left-posterior-superior", "space directions": np.diag([0.5, 0.5, 0.625]),
-              "space origin": np.array([10.0, 20.0, 30.0])}
+    header = {
+        "space": "left-posterior-superior",
+        "space directions": np.diag([0.5, 0.5, 0.625]),
+        "space origin": np.array([10.0, 20.0, 30.0]),
+    }
     nrrd.write(str(tmp_path / "ct.nrrd"), VOXELS, header, index_order="F")
     volume = load_volume(tmp_path / "ct.nrrd")
     np.testing.assert_allclose(volume.ijk_to_ras_points([[2, 3, 4]]), [[-11.0, -21.5, 32.5]])
@@ -32,8 +34,11 @@ def test_nrrd_in_lps_is_read_as_ras_by_hand(tmp_path):
 
 
 def test_nrrd_in_ras_space(tmp_path):
-    header = {"space": "right-anterior-superior", "space directions": np.diag([1.0, 2.0, 3.0]),
-              "space origin": np.array([1.0, 2.0, 3.0])}
+    header = {
+        "space": "right-anterior-superior",
+        "space directions": np.diag([1.0, 2.0, 3.0]),
+        "space origin": np.array([1.0, 2.0, 3.0]),
+    }
     nrrd.write(str(tmp_path / "ras.nrrd"), VOXELS, header, index_order="F")
     np.testing.assert_allclose(load_volume(tmp_path / "ras.nrrd").ijk_to_ras_points([[1, 1, 1]]), [[2.0, 4.0, 6.0]])
 
@@ -66,13 +71,16 @@ def test_the_shipped_real_ct_geometry():
     np.testing.assert_allclose(volume.ijk_to_ras_points([[0, 0, 0]]), [[-177.956, 11.319, 94.302]], atol=1e-3)
 
 
-@pytest.mark.parametrize("voxels, matrix, message", [
-    (np.zeros((4, 5)), np.eye(4), "expected a 3-D volume, got 2 dimension(s)"),
-    (np.zeros((4, 5, 6, 2)), np.eye(4), "expected a 3-D volume, got 4 dimension(s)"),
-    (np.zeros((4, 1, 6)), np.eye(4), "is empty or flat"),
-    (np.zeros((4, 5, 6)), np.diag([1.0, 0.0, 1.0, 1.0]), "voxel spacing [1.0, 0.0, 1.0] mm has a zero"),
-    (np.zeros((4, 5, 6)), np.full((4, 4), np.nan), "must be a finite 4x4 matrix"),
-])
+@pytest.mark.parametrize(
+    "voxels, matrix, message",
+    [
+        (np.zeros((4, 5)), np.eye(4), "expected a 3-D volume, got 2 dimension(s)"),
+        (np.zeros((4, 5, 6, 2)), np.eye(4), "expected a 3-D volume, got 4 dimension(s)"),
+        (np.zeros((4, 1, 6)), np.eye(4), "is empty or flat"),
+        (np.zeros((4, 5, 6)), np.diag([1.0, 0.0, 1.0, 1.0]), "voxel spacing [1.0, 0.0, 1.0] mm has a zero"),
+        (np.zeros((4, 5, 6)), np.full((4, 4), np.nan), "must be a finite 4x4 matrix"),
+    ],
+)
 def test_bad_volumes_say_what_to_change(voxels, matrix, message):
     with pytest.raises(ValueError) as error:
         check_volume(voxels, matrix)
@@ -80,8 +88,11 @@ def test_bad_volumes_say_what_to_change(voxels, matrix, message):
 
 
 def test_bad_volume_files_name_the_file(tmp_path):
-    header = {"space": "left-posterior-superior", "space directions": np.diag([0.5, 0.0, 0.625]),
-              "space origin": np.zeros(3)}
+    header = {
+        "space": "left-posterior-superior",
+        "space directions": np.diag([0.5, 0.0, 0.625]),
+        "space origin": np.zeros(3),
+    }
     nrrd.write(str(tmp_path / "zero.nrrd"), VOXELS, header, index_order="F")
     with pytest.raises(PointFileError, match="zero.nrrd: voxel spacing .* has a zero"):
         load_volume(tmp_path / "zero.nrrd")

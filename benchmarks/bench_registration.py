@@ -16,11 +16,6 @@ import statistics
 import time
 
 import numpy as np
-from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
-from vtkmodules.vtkCommonCore import vtkPoints
-from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
-from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
-
 from RAMSICPRegistrationLib.icp import icp
 from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
@@ -29,6 +24,10 @@ from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.sweep import PAPER_SCALES, sweep_scales
 from RAMSICPRegistrationLib.transforms import apply_transform
 from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.vtkCommonCore import vtkPoints
+from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
+from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
 
 TARGET_SECONDS = 0.1
 
@@ -50,8 +49,10 @@ class BruteForceIndex:
         return distances, indices
 
     def query_ball_point(self, centres, radii):
-        return [np.flatnonzero(np.linalg.norm(self.points - centre, axis=1) <= radius).tolist()
-                for centre, radius in zip(centres, radii)]
+        return [
+            np.flatnonzero(np.linalg.norm(self.points - centre, axis=1) <= radius).tolist()
+            for centre, radius in zip(centres, radii)
+        ]
 
 
 def our_sweep(ipc, trial, index_class=SurfaceIndex):
@@ -115,8 +116,10 @@ def main():
     fle = patient.marker_fle_for_cr_tre(1.33)
     trials = [patient.simulate_trial(rng, fle) for _ in range(arguments.repeats)]
     ipc = patient.ipc
-    print(f"IPC {len(ipc):,} points, PPC {len(trials[0].ppc)} points, {len(PAPER_SCALES)} values of L, "
-          f"{arguments.repeats} repeats (a new trial each)")
+    print(
+        f"IPC {len(ipc):,} points, PPC {len(trials[0].ppc)} points, {len(PAPER_SCALES)} values of L, "
+        f"{arguments.repeats} repeats (a new trial each)"
+    )
 
     counter = iter(range(10**9))
     ours, _ = median_seconds(lambda: our_sweep(ipc, trials[next(counter) % len(trials)]), arguments.repeats)
@@ -134,7 +137,9 @@ def main():
     # Same answer check: VTK's ICP and ours from the same CR should land close together.
     ours_icp_transform = our_icp(index, trials[0]).transform
     vtk_transform = vtk_icp(target, trials[0])
-    gap = np.abs(apply_transform(ours_icp_transform, trials[0].ppc) - apply_transform(vtk_transform, trials[0].ppc)).max()
+    gap = np.abs(
+        apply_transform(ours_icp_transform, trials[0].ppc) - apply_transform(vtk_transform, trials[0].ppc)
+    ).max()
 
     rows = [
         ("ours: KD-tree build + CR + 21-L RAMSICP sweep", ours),
@@ -146,8 +151,10 @@ def main():
     print(f"\n{'what':<66} {'median (ms)':>12} {'ratio to our sweep':>19}")
     for label, seconds in rows:
         print(f"{label:<66} {1000 * seconds:12.1f} {seconds / ours:19.2f}")
-    print(f"\nour sweep target <= {1000 * TARGET_SECONDS:.0f} ms: {'met' if ours <= TARGET_SECONDS else 'NOT met'} "
-          f"({1000 * ours:.1f} ms); ours vs VTK ICP end points differ by at most {gap:.4f} mm")
+    print(
+        f"\nour sweep target <= {1000 * TARGET_SECONDS:.0f} ms: {'met' if ours <= TARGET_SECONDS else 'NOT met'} "
+        f"({1000 * ours:.1f} ms); ours vs VTK ICP end points differ by at most {gap:.4f} mm"
+    )
 
 
 if __name__ == "__main__":

@@ -10,16 +10,16 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, resample_points, segment_bone
+from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .marker_spheres import detect_marker_spheres, order_to_tool
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .registration import METHODS, POLICIES, register
 from .surface_files import read_surface_points, write_surface
-from .volume_io import load_volume
 from .surface_index import SurfaceIndex
 from .sweep import make_scales
+from .volume_io import load_volume
 
 EXIT_BAD_INPUT = 2
 
@@ -28,8 +28,9 @@ def main(argv=None):
     """Entry point of the console script; returns the process exit code."""
     parser = _parser()
     arguments = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if arguments.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if arguments.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     try:
         return arguments.run(arguments)
     except (ValueError, OSError) as error:
@@ -39,17 +40,23 @@ def main(argv=None):
 
 
 def _parser():
-    parser = argparse.ArgumentParser(prog="ramsicp", description="CR-RAMSICP patient-to-image registration "
-                                     "for robot-assisted long-bone osteotomy.")
+    parser = argparse.ArgumentParser(
+        prog="ramsicp", description="CR-RAMSICP patient-to-image registration for robot-assisted long-bone osteotomy."
+    )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log what happens")
     commands = parser.add_subparsers(dest="command", required=True)
 
-    reg = commands.add_parser("register", help="register probe points and markers to an image point cloud",
-                              description="Coordinates: files that state their frame (markups JSON, fcsv, model "
-                              "headers) are honoured; others are taken as --untagged-space.")
+    reg = commands.add_parser(
+        "register",
+        help="register probe points and markers to an image point cloud",
+        description="Coordinates: files that state their frame (markups JSON, fcsv, model "
+        "headers) are honoured; others are taken as --untagged-space.",
+    )
     reg.add_argument("--ipc", required=True, help="image point cloud: .vtk .vtp .stl .ply .obj or a point file")
-    reg.add_argument("--ppc", required=True, help="probe points in reference coordinates (.mrk.json .fcsv .csv .txt .npy)")
+    reg.add_argument(
+        "--ppc", required=True, help="probe points in reference coordinates (.mrk.json .fcsv .csv .txt .npy)"
+    )
     reg.add_argument("--markers-image", required=True, help="marker-sphere centres in the image")
     reg.add_argument("--markers-patient", required=True, help="the same centres in reference coordinates")
     reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
@@ -58,14 +65,30 @@ def _parser():
     how = reg.add_mutually_exclusive_group()
     how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5)")
     how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy")
-    reg.add_argument("--scales", nargs=3, type=float, metavar=("START", "STOP", "STEP"), default=(1.0, 5.0, 0.2),
-                     help="the sweep's range (default 1 5 0.2)")
-    reg.add_argument("--policy", choices=POLICIES,
-                     help="how the sweep picks L (default: targets when targets are given, else rms-plateau)")
-    reg.add_argument("--fle", type=float, help="marker localisation error (mm) for the predicted TRE "
-                     "(default: estimated from the FRE)")
-    reg.add_argument("--untagged-space", choices=("RAS", "LPS"), default="RAS",
-                     help="frame of files that do not state one (default RAS)")
+    reg.add_argument(
+        "--scales",
+        nargs=3,
+        type=float,
+        metavar=("START", "STOP", "STEP"),
+        default=(1.0, 5.0, 0.2),
+        help="the sweep's range (default 1 5 0.2)",
+    )
+    reg.add_argument(
+        "--policy",
+        choices=POLICIES,
+        help="how the sweep picks L (default: targets when targets are given, else rms-plateau)",
+    )
+    reg.add_argument(
+        "--fle",
+        type=float,
+        help="marker localisation error (mm) for the predicted TRE (default: estimated from the FRE)",
+    )
+    reg.add_argument(
+        "--untagged-space",
+        choices=("RAS", "LPS"),
+        default="RAS",
+        help="frame of files that do not state one (default RAS)",
+    )
     reg.add_argument("--json", type=Path, help="write the full result as JSON")
     reg.set_defaults(run=_run_register)
 
@@ -73,22 +96,35 @@ def _parser():
     demo.add_argument("--trials", type=int, default=50, help="number of simulated registrations (default 50)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     demo.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
-    demo.add_argument("--image-source", choices=("ct", "mesh"), default="ct",
-                      help="ct: IPC and marker centres from a CT phantom (default); mesh: IPC sampled on the mesh")
+    demo.add_argument(
+        "--image-source",
+        choices=("ct", "mesh"),
+        default="ct",
+        help="ct: IPC and marker centres from a CT phantom (default); mesh: IPC sampled on the mesh",
+    )
     demo.add_argument("--json", type=Path, help="write every trial's TRE as JSON")
     demo.set_defaults(run=_run_demo)
 
     ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
     ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii or .nii.gz")
-    ipc.add_argument("--threshold", default=str(DEFAULT_THRESHOLD_HU),
-                     help=f"bone threshold in HU, or 'auto' (Otsu); default {DEFAULT_THRESHOLD_HU:g}")
+    ipc.add_argument(
+        "--threshold",
+        default=str(DEFAULT_THRESHOLD_HU),
+        help=f"bone threshold in HU, or 'auto' (Otsu); default {DEFAULT_THRESHOLD_HU:g}",
+    )
     ipc.add_argument("--spacing", type=float, help="thin the IPC to about one point per this many mm")
-    ipc.add_argument("--keep-cavities", action="store_true",
-                     help="keep the inner (marrow) surface of the cortex in the IPC, as the paper's IPC does")
+    ipc.add_argument(
+        "--keep-cavities",
+        action="store_true",
+        help="keep the inner (marrow) surface of the cortex in the IPC, as the paper's IPC does",
+    )
     ipc.add_argument("--out", type=Path, required=True, help="IPC file: .vtp .vtk .ply .stl .obj or a point file")
     ipc.add_argument("--markers", type=Path, help="write the marker-sphere centres (.mrk.json, .fcsv, ...)")
-    ipc.add_argument("--tool", default=DEFAULT_REFERENCE_TOOL,
-                     help=f"NDI tool whose marker order the centres follow (default {DEFAULT_REFERENCE_TOOL})")
+    ipc.add_argument(
+        "--tool",
+        default=DEFAULT_REFERENCE_TOOL,
+        help=f"NDI tool whose marker order the centres follow (default {DEFAULT_REFERENCE_TOOL})",
+    )
     ipc.add_argument("--json", type=Path, help="write counts, thresholds, spheres and timings as JSON")
     ipc.set_defaults(run=_run_ipc)
     return parser
@@ -107,9 +143,20 @@ def _run_register(arguments):
     if arguments.targets_image:
         targets_image = read_points(arguments.targets_image, space).points
         targets_patient = read_points(arguments.targets_patient, space).points
-    result = register(SurfaceIndex(ipc), ppc, markers_image, markers_patient, targets_image, targets_patient,
-                      method=arguments.method, scale=arguments.scale, sweep=arguments.sweep,
-                      scales=make_scales(*arguments.scales), policy=arguments.policy, fle_mm=arguments.fle)
+    result = register(
+        SurfaceIndex(ipc),
+        ppc,
+        markers_image,
+        markers_patient,
+        targets_image,
+        targets_patient,
+        method=arguments.method,
+        scale=arguments.scale,
+        sweep=arguments.sweep,
+        scales=make_scales(*arguments.scales),
+        policy=arguments.policy,
+        fle_mm=arguments.fle,
+    )
     seconds = time.perf_counter() - clock
     print(_format_result(result, len(ipc), seconds))
     if arguments.json:
@@ -130,8 +177,10 @@ def _format_result(result, ipc_count, seconds):
     lines.append(f"point clouds      {ipc_count} IPC points, {len(result.residuals_mm)} probe points; {seconds:.2f} s")
     lines.append(f"FRE (markers)     {result.fre_mm:.2f} mm  [{_numbers(result.marker_residuals_mm)}]")
     worst = int(np.argmax(result.residuals_mm))
-    lines.append(f"probe points RMS  {result.ppc_rms_mm:.2f} mm to the surface "
-                 f"(worst: point {worst}, {result.residuals_mm[worst]:.2f} mm)")
+    lines.append(
+        f"probe points RMS  {result.ppc_rms_mm:.2f} mm to the surface "
+        f"(worst: point {worst}, {result.residuals_mm[worst]:.2f} mm)"
+    )
     if result.tre_mm is not None:
         lines.append(f"TRE (eq. 11)      {result.tre_mm:.2f} mm  [{_numbers(result.target_errors_mm)}]")
         lines.append(f"predicted CR TRE  [{_numbers(result.predicted_cr_tre_mm)}] mm for FLE {result.fle_mm:.2f} mm")
@@ -142,7 +191,8 @@ def _format_result(result, ipc_count, seconds):
         for entry in result.sweep:
             tre = "-" if entry.tre_mm is None else f"{entry.tre_mm:.3f}"
             mark = "  <- chosen" if entry.scale == result.scale else ""
-            lines.append(f"      {entry.scale:5.1f}   {entry.result.rms_mm:8.3f}   {tre:>8}   {entry.result.iterations:10d}{mark}")
+            result_text = f"{entry.result.rms_mm:8.3f}   {tre:>8}   {entry.result.iterations:10d}"
+            lines.append(f"      {entry.scale:5.1f}   {result_text}{mark}")
     for warning in result.warnings:
         lines.append(f"warning: {warning}")
     return "\n".join(lines)
@@ -162,16 +212,25 @@ class _ProgressBar:
         if not self.stream.isatty():
             return
         filled = int(self.width * done / max(total, 1))
-        print(f"\r  {step:<22} [{'#' * filled}{'.' * (self.width - filled)}] {done}/{total}", end="",
-              file=self.stream, flush=True)
+        print(
+            f"\r  {step:<22} [{'#' * filled}{'.' * (self.width - filled)}] {done}/{total}",
+            end="",
+            file=self.stream,
+            flush=True,
+        )
         if done >= total:
             print(file=self.stream)
 
 
 def _run_demo(arguments):
     clock = time.perf_counter()
-    report = run_demo(trials=arguments.trials, seed=arguments.seed, bone=arguments.bone,
-                      image_source=arguments.image_source, progress=_ProgressBar())
+    report = run_demo(
+        trials=arguments.trials,
+        seed=arguments.seed,
+        bone=arguments.bone,
+        image_source=arguments.image_source,
+        progress=_ProgressBar(),
+    )
     total = time.perf_counter() - clock
     print(_format_demo(report, total))
     if arguments.json:
@@ -187,9 +246,11 @@ def _format_demo(report, total_seconds):
     lines = [f"RAMSICP Navigator demo: virtual patient from the Visible Human Female {bone} (CC BY 4.0)"]
     if report.image_source == "ct":
         errors = side.marker_errors_mm
-        lines.append(f"  image side from a CT phantom (0.5 x 0.5 x 0.625 mm): IPC {report.ipc_points:,} points "
-                     f"(median {side.ipc_offset_mm:+.2f} mm from the true surface); automatic marker centres "
-                     f"off by {errors.mean():.3f} mm mean, {errors.max():.3f} mm max")
+        lines.append(
+            f"  image side from a CT phantom (0.5 x 0.5 x 0.625 mm): IPC {report.ipc_points:,} points "
+            f"(median {side.ipc_offset_mm:+.2f} mm from the true surface); automatic marker centres "
+            f"off by {errors.mean():.3f} mm mean, {errors.max():.3f} mm max"
+        )
     else:
         lines.append(f"  IPC {report.ipc_points:,} points sampled on the bone mesh")
     lines += [
@@ -204,13 +265,19 @@ def _format_demo(report, total_seconds):
             paper = PAPER_TRE_MM.get(PAPER_ROWS.get(label)) if mode == "manual" else None
             paper_text = f"{paper[0]:.2f} +- {paper[1]:.2f}" if paper else ""
             lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}")
-        lines.append("  mean L chosen by policy: " + ", ".join(
-            f"{policy} {np.mean(values):.1f}" for policy, values in report.chosen_scales[mode].items()))
+        lines.append(
+            "  mean L chosen by policy: "
+            + ", ".join(f"{policy} {np.mean(values):.1f}" for policy, values in report.chosen_scales[mode].items())
+        )
     seconds = report.seconds
     image_seconds = ", ".join(f"{name.replace('_', ' ')} {value:.1f} s" for name, value in side.seconds.items())
-    lines += ["", f"  time: {total_seconds:.1f} s in all" + (f" ({image_seconds})" if image_seconds else "")
-              + f"; KD-tree {1000 * seconds['kd_tree_build']:.0f} ms once; "
-              f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep"]
+    lines += [
+        "",
+        f"  time: {total_seconds:.1f} s in all"
+        + (f" ({image_seconds})" if image_seconds else "")
+        + f"; KD-tree {1000 * seconds['kd_tree_build']:.0f} ms once; "
+        f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep",
+    ]
     return "\n".join(lines)
 
 
@@ -244,33 +311,48 @@ def _run_ipc(arguments):
     spheres = list(detection.spheres)
     warnings = list(detection.warnings)
     if len(spheres) == 4:
-        order, fre = order_to_tool(np.array([sphere.centre for sphere in spheres]), tool_marker_geometry(arguments.tool))
+        order, fre = order_to_tool(
+            np.array([sphere.centre for sphere in spheres]), tool_marker_geometry(arguments.tool)
+        )
         spheres = [spheres[i] for i in order]
         if fre > 1.0:
-            warnings.append(f"the sphere centres do not match NDI tool {arguments.tool}'s geometry (FRE {fre:.2f} mm); "
-                            "check --tool")
+            warnings.append(
+                f"the sphere centres do not match NDI tool {arguments.tool}'s geometry (FRE {fre:.2f} mm); check --tool"
+            )
     if _suffix(arguments.out) in POINT_SUFFIXES:
         write_points(arguments.out, points)
     else:
         write_surface(arguments.out, points, triangles)
     if arguments.markers is not None and spheres:
-        write_points(arguments.markers, np.array([sphere.centre for sphere in spheres]),
-                     labels=[f"M{i + 1} {sphere.status}" for i, sphere in enumerate(spheres)])
+        write_points(
+            arguments.markers,
+            np.array([sphere.centre for sphere in spheres]),
+            labels=[f"M{i + 1} {sphere.status}" for i, sphere in enumerate(spheres)],
+        )
     voxels = "x".join(str(n) for n in volume.voxels.shape)
     print(f"CT               {arguments.ct}: {voxels} voxels of {' x '.join(f'{s:g}' for s in volume.spacing)} mm")
     print(f"threshold        {segmentation.threshold_hu:.0f} HU")
     print(f"IPC              {len(points):,} points -> {arguments.out}")
     for number, sphere in enumerate(spheres):
         centre = ", ".join(f"{value:.2f}" for value in sphere.centre)
-        print(f"marker {number + 1}         ({centre}) radius {sphere.radius_mm:.2f} mm, residual "
-              f"{sphere.residual_mm:.3f} mm, {sphere.status}")
+        print(
+            f"marker {number + 1}         ({centre}) radius {sphere.radius_mm:.2f} mm, residual "
+            f"{sphere.residual_mm:.3f} mm, {sphere.status}"
+        )
     print("time             " + ", ".join(f"{name.replace('_', ' ')} {value:.2f} s" for name, value in seconds.items()))
     for warning in warnings:
         print(f"warning: {warning}")
     if arguments.json:
-        document = {"ct": str(arguments.ct), "shape": list(volume.voxels.shape), "spacing_mm": volume.spacing.tolist(),
-                    "threshold_hu": segmentation.threshold_hu, "ipc_points": len(points),
-                    "spheres": [sphere.to_dict() for sphere in spheres], "warnings": warnings, "seconds": seconds}
+        document = {
+            "ct": str(arguments.ct),
+            "shape": list(volume.voxels.shape),
+            "spacing_mm": volume.spacing.tolist(),
+            "threshold_hu": segmentation.threshold_hu,
+            "ipc_points": len(points),
+            "spheres": [sphere.to_dict() for sphere in spheres],
+            "warnings": warnings,
+            "seconds": seconds,
+        }
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
     return 0
 

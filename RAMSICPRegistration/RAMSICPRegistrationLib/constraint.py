@@ -69,8 +69,14 @@ def analyse_pose_constraint(points, normals, probe_noise_mm=DEFAULT_PROBE_NOISE_
     warning = None
     if eigenvalues[0] < MIN_EIGENVALUE:
         warning = _describe(uncertainty[0], is_rotation, axis, radius, probe_noise_mm, long_axis)
-    return ConstraintReport(uncertainty_mm=uncertainty, weakest_motion=weakest, is_rotation=is_rotation,
-                            axis=axis, radius_mm=radius, warning=warning)
+    return ConstraintReport(
+        uncertainty_mm=uncertainty,
+        weakest_motion=weakest,
+        is_rotation=is_rotation,
+        axis=axis,
+        radius_mm=radius,
+        warning=warning,
+    )
 
 
 def bone_long_axis(ipc_points):
@@ -86,11 +92,16 @@ def _describe(uncertainty, is_rotation, axis, radius, noise, long_axis):
         angle = np.degrees(np.arccos(min(1.0, abs(float(np.dot(axis, long_axis))))))
         if angle < 30.0:
             relation = f", {angle:.0f} deg from the bone's long axis"
-    amount = "is not constrained at all" if not np.isfinite(uncertainty) else (
-        f"is uncertain by about {uncertainty:.1f} mm for {noise:.2f} mm probe noise")
+    amount = (
+        "is not constrained at all"
+        if not np.isfinite(uncertainty)
+        else (f"is uncertain by about {uncertainty:.1f} mm for {noise:.2f} mm probe noise")
+    )
     if is_rotation:
         motion = f"rotation about the axis {direction}{relation} (arc at {radius:.0f} mm from the points' centre)"
     else:
         motion = f"translation along {direction}{relation}"
-    return (f"The probe points poorly constrain the pose: {motion} {amount}. "
-            "Collect points on surfaces facing other directions (around the bone and at its ends).")
+    return (
+        f"The probe points poorly constrain the pose: {motion} {amount}. "
+        "Collect points on surfaces facing other directions (around the bone and at its ends)."
+    )

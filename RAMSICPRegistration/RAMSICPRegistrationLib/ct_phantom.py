@@ -30,8 +30,16 @@ from .volume_io import CTVolume
 logger = logging.getLogger(__name__)
 
 PAPER_SPACING_MM = (0.5, 0.5, 0.625)
-HU = {"air": -1000.0, "soft_tissue": 40.0, "marrow": -40.0, "cancellous": 300.0, "cortex": 1400.0,
-      "marker": 700.0, "plastic": 110.0, "carbon": 160.0}
+HU = {
+    "air": -1000.0,
+    "soft_tissue": 40.0,
+    "marrow": -40.0,
+    "cancellous": 300.0,
+    "cortex": 1400.0,
+    "marker": 700.0,
+    "plastic": 110.0,
+    "carbon": 160.0,
+}
 CORTEX_THICKNESS_MM = 2.5
 EPIPHYSIS_MM = 60.0
 SOFT_TISSUE_MM = 15.0
@@ -56,13 +64,26 @@ class PhantomTruth:
     settings: dict = field(default_factory=dict)
 
     def to_dict(self):
-        return {"reference_to_image": self.reference_to_image.tolist(), "marker_centres": self.marker_centres.tolist(),
-                "marker_radius_mm": self.marker_radius_mm,
-                "marker_defects": {str(k): v for k, v in self.marker_defects.items()}, **self.settings}
+        return {
+            "reference_to_image": self.reference_to_image.tolist(),
+            "marker_centres": self.marker_centres.tolist(),
+            "marker_radius_mm": self.marker_radius_mm,
+            "marker_defects": {str(k): v for k, v in self.marker_defects.items()},
+            **self.settings,
+        }
 
 
-def make_ct_phantom(patient, vertices, triangles, seed=0, spacing=PAPER_SPACING_MM, noise_hu=NOISE_HU,
-                    defects=None, margin_mm=12.0, below_cut_mm=110.0):
+def make_ct_phantom(
+    patient,
+    vertices,
+    triangles,
+    seed=0,
+    spacing=PAPER_SPACING_MM,
+    noise_hu=NOISE_HU,
+    defects=None,
+    margin_mm=12.0,
+    below_cut_mm=110.0,
+):
     """Render a CT phantom of a virtual patient.
 
     Args:
@@ -105,11 +126,22 @@ def make_ct_phantom(patient, vertices, triangles, seed=0, spacing=PAPER_SPACING_
     noise = np.random.default_rng(seed + 1).normal(scale=noise_hu, size=blurred.shape).astype(np.float32)
     voxels = np.round(blurred + noise).astype(np.int16)
     truth = PhantomTruth(
-        reference_to_image=patient.reference_to_image.copy(), marker_centres=markers.copy(), marker_radius_mm=radius,
-        marker_defects=defects, bone_vertices=vertices, bone_triangles=triangles,
-        settings={"spacing_mm": spacing.tolist(), "shape": shape.tolist(), "noise_hu": noise_hu,
-                  "psf_sigma_mm": PSF_SIGMA_MM, "hu": HU, "cortex_thickness_mm": CORTEX_THICKNESS_MM,
-                  "seed": seed})
+        reference_to_image=patient.reference_to_image.copy(),
+        marker_centres=markers.copy(),
+        marker_radius_mm=radius,
+        marker_defects=defects,
+        bone_vertices=vertices,
+        bone_triangles=triangles,
+        settings={
+            "spacing_mm": spacing.tolist(),
+            "shape": shape.tolist(),
+            "noise_hu": noise_hu,
+            "psf_sigma_mm": PSF_SIGMA_MM,
+            "hu": HU,
+            "cortex_thickness_mm": CORTEX_THICKNESS_MM,
+            "seed": seed,
+        },
+    )
     return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras), truth
 
 
@@ -133,7 +165,7 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
     from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray, vtk_to_numpy
     from vtkmodules.vtkCommonCore import vtkPoints
-    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkImageData, vtkPolyData
+    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
     from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
 
     spacing = volume.spacing
@@ -151,8 +183,10 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     mesh = vtkPolyData()
     mesh.SetPoints(points)
     cells = vtkCellArray()
-    cells.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64), deep=True),
-                  numpy_to_vtkIdTypeArray(np.ascontiguousarray(triangles.ravel(), dtype=np.int64), deep=True))
+    cells.SetData(
+        numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64), deep=True),
+        numpy_to_vtkIdTypeArray(np.ascontiguousarray(triangles.ravel(), dtype=np.int64), deep=True),
+    )
     mesh.SetPolys(cells)
     stencil = vtkPolyDataToImageStencil()
     stencil.SetInputData(mesh)
@@ -206,8 +240,14 @@ def _paint_reference_body(volume, patient, radius, defects):
 
 
 def _box_around(volume, low_ras, high_ras):
-    corners = np.array([[x, y, z] for x in (low_ras[0], high_ras[0]) for y in (low_ras[1], high_ras[1])
-                        for z in (low_ras[2], high_ras[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (low_ras[0], high_ras[0])
+            for y in (low_ras[1], high_ras[1])
+            for z in (low_ras[2], high_ras[2])
+        ]
+    )
     ijk = volume.ras_to_ijk_points(corners)
     low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
     high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(volume.voxels.shape) - 1)

@@ -13,8 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .volume_io import CTVolume
-
 logger = logging.getLogger(__name__)
 
 #: Default bone threshold (HU): above fat, marrow and soft tissue, below cancellous bone.
@@ -92,18 +90,26 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
         raise ValueError(f"threshold {threshold_hu!r}: give a number of HU or 'auto'") from None
     foreground = smoothed >= threshold_hu
     if not foreground.any():
-        raise ValueError(f"no voxel is above the threshold of {threshold_hu:.0f} HU (the CT's maximum is "
-                         f"{float(smoothed.max()):.0f} HU); lower the threshold or check that the CT is in HU")
+        raise ValueError(
+            f"no voxel is above the threshold of {threshold_hu:.0f} HU (the CT's maximum is "
+            f"{float(smoothed.max()):.0f} HU); lower the threshold or check that the CT is in HU"
+        )
     labels, count = ndimage.label(foreground)
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
     sizes[0] = 0
     bone_label = int(np.argmax(sizes))
     voxel_mm3 = float(np.prod(volume.spacing))
     objects = tuple(int(label) for label in np.flatnonzero(sizes * voxel_mm3 >= MIN_OBJECT_MM3) if label != bone_label)
-    logger.info("threshold %.0f HU: bone %.0f mm^3, %d other objects", threshold_hu, sizes[bone_label] * voxel_mm3,
-                len(objects))
-    return BoneSegmentation(smoothed=smoothed, threshold_hu=threshold_hu, labels=labels.astype(np.int32),
-                            bone_label=bone_label, object_labels=objects)
+    logger.info(
+        "threshold %.0f HU: bone %.0f mm^3, %d other objects", threshold_hu, sizes[bone_label] * voxel_mm3, len(objects)
+    )
+    return BoneSegmentation(
+        smoothed=smoothed,
+        threshold_hu=threshold_hu,
+        labels=labels.astype(np.int32),
+        bone_label=bone_label,
+        object_labels=objects,
+    )
 
 
 @dataclass(frozen=True)
@@ -162,9 +168,12 @@ def _surface_level(image, mask, threshold, level, spacing):
     rim = ndimage.binary_erosion(mask, iterations=1) & ~ndimage.binary_erosion(mask, iterations=4)
     rim_values = image[rim]
     cortex = float(np.percentile(rim_values[rim_values < METAL_HU], 95))
-    outside = float(np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)]))
-    logger.info("bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2,
-                cortex, outside)
+    outside = float(
+        np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)])
+    )
+    logger.info(
+        "bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2, cortex, outside
+    )
     return 0.5 * (cortex + outside)
 
 

@@ -30,12 +30,19 @@ logger = logging.getLogger(__name__)
 PAPER_TRE_MM = {"CR": (1.33, 0.27), "CR-ICP": (0.89, 0.14), "CR-RAMSICP": (0.56, 0.08)}
 PROBE_NOISE_MM = 0.25
 POLICIES = ("targets", "rms-plateau", "fixed")
-METHOD_LABELS = ("CR", "CR-ICP", "CR-RAMSICP (L by min TRE, paper)", "CR-RAMSICP (rms-plateau, target-free)",
-                 f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})")
+METHOD_LABELS = (
+    "CR",
+    "CR-ICP",
+    "CR-RAMSICP (L by min TRE, paper)",
+    "CR-RAMSICP (rms-plateau, target-free)",
+    f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})",
+)
 #: Which demo rows the paper reports, and under which name.
 PAPER_ROWS = {"CR": "CR", "CR-ICP": "CR-ICP", "CR-RAMSICP (L by min TRE, paper)": "CR-RAMSICP"}
-MARKER_MODES = {"manual": "marker centres placed by hand (the paper's error)",
-                "automatic": "marker centres found automatically in the CT"}
+MARKER_MODES = {
+    "manual": "marker centres placed by hand (the paper's error)",
+    "automatic": "marker centres found automatically in the CT",
+}
 
 
 @dataclass(frozen=True)
@@ -69,32 +76,51 @@ class DemoReport:
 
     def summary(self):
         """marker mode -> method label -> (mean, sd) of the TRE in mm."""
-        return {mode: {label: (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0)
-                       for label, values in rows.items()} for mode, rows in self.tre_mm.items()}
+        return {
+            mode: {
+                label: (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0)
+                for label, values in rows.items()
+            }
+            for mode, rows in self.tre_mm.items()
+        }
 
     def to_dict(self):
         side = self.image_side
         return {
-            "bone": self.bone, "image_source": self.image_source, "trials": self.trials, "seed": self.seed,
-            "ipc_points": self.ipc_points, "probe_points": self.probe_points, "probe_noise_mm": self.probe_noise_mm,
+            "bone": self.bone,
+            "image_source": self.image_source,
+            "trials": self.trials,
+            "seed": self.seed,
+            "ipc_points": self.ipc_points,
+            "probe_points": self.probe_points,
+            "probe_noise_mm": self.probe_noise_mm,
             "marker_fle_mm": self.marker_fle_mm,
-            "tre_mm": {mode: {label: values.tolist() for label, values in rows.items()}
-                       for mode, rows in self.tre_mm.items()},
-            "summary_mm": {mode: {label: {"mean": mean, "sd": sd} for label, (mean, sd) in rows.items()}
-                           for mode, rows in self.summary().items()},
+            "tre_mm": {
+                mode: {label: values.tolist() for label, values in rows.items()} for mode, rows in self.tre_mm.items()
+            },
+            "summary_mm": {
+                mode: {label: {"mean": mean, "sd": sd} for label, (mean, sd) in rows.items()}
+                for mode, rows in self.summary().items()
+            },
             "paper_mm": {label: {"mean": mean, "sd": sd} for label, (mean, sd) in PAPER_TRE_MM.items()},
-            "chosen_scales": {mode: {policy: values.tolist() for policy, values in rows.items()}
-                              for mode, rows in self.chosen_scales.items()},
-            "image_side": {"ipc_points": len(side.ipc), "ipc_offset_mm": side.ipc_offset_mm,
-                           "automatic_marker_errors_mm": None if side.marker_errors_mm is None
-                           else side.marker_errors_mm.tolist(), "seconds": side.seconds,
-                           "warnings": list(side.warnings)},
+            "chosen_scales": {
+                mode: {policy: values.tolist() for policy, values in rows.items()}
+                for mode, rows in self.chosen_scales.items()
+            },
+            "image_side": {
+                "ipc_points": len(side.ipc),
+                "ipc_offset_mm": side.ipc_offset_mm,
+                "automatic_marker_errors_mm": None if side.marker_errors_mm is None else side.marker_errors_mm.tolist(),
+                "seconds": side.seconds,
+                "warnings": list(side.warnings),
+            },
             "seconds": self.seconds,
         }
 
 
-def run_demo(trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr_tre_mm=PAPER_TRE_MM["CR"][0],
-             progress=None):
+def run_demo(
+    trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr_tre_mm=PAPER_TRE_MM["CR"][0], progress=None
+):
     """Run the demo; see the module docstring.
 
     Args:
@@ -109,8 +135,9 @@ def run_demo(trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr
     report = progress or (lambda step, done, total: None)
     clock = time.perf_counter()
     vertices, triangles = read_surface_mesh(bone_mesh_path(bone), untagged_space="RAS")
-    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
-                                       BONES[bone]["medial"], seed=seed)
+    patient = VirtualPatient.from_mesh(
+        vertices, triangles, tool_marker_geometry(DEFAULT_REFERENCE_TOOL), BONES[bone]["medial"], seed=seed
+    )
     marker_fle = patient.marker_fle_for_cr_tre(target_cr_tre_mm, seed=seed)
     setup_seconds = time.perf_counter() - clock
     if image_source == "ct":
@@ -130,8 +157,14 @@ def run_demo(trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr
         data = patient.simulate_trial(rng, marker_fle, PROBE_NOISE_MM)
         for mode in modes:
             markers_image = data.markers_image if mode == "manual" else side.automatic_markers
-            common = dict(ipc=index, ppc=data.ppc, markers_image=markers_image, markers_patient=data.markers_patient,
-                          targets_image=data.targets_image, targets_patient=data.targets_patient)
+            common = dict(
+                ipc=index,
+                ppc=data.ppc,
+                markers_image=markers_image,
+                markers_patient=data.markers_patient,
+                targets_image=data.targets_image,
+                targets_patient=data.targets_patient,
+            )
             start = time.perf_counter()
             for method, label in (("cr", "CR"), ("cr-icp", "CR-ICP")):
                 tre[mode][label][trial] = register(method=method, **common).tre_mm
@@ -143,9 +176,20 @@ def run_demo(trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr
                 scales[mode][policy][trial] = entry.scale
         report("registrations", trial + 1, trials)
     seconds["per_trial_and_mode"] = seconds["registration"] / (trials * len(modes))
-    return DemoReport(bone=bone, image_source=image_source, trials=trials, seed=seed, ipc_points=len(side.ipc),
-                      probe_points=len(data.ppc), probe_noise_mm=PROBE_NOISE_MM, marker_fle_mm=marker_fle,
-                      tre_mm=tre, chosen_scales=scales, image_side=side, seconds=seconds)
+    return DemoReport(
+        bone=bone,
+        image_source=image_source,
+        trials=trials,
+        seed=seed,
+        ipc_points=len(side.ipc),
+        probe_points=len(data.ppc),
+        probe_noise_mm=PROBE_NOISE_MM,
+        marker_fle_mm=marker_fle,
+        tre_mm=tre,
+        chosen_scales=scales,
+        image_side=side,
+        seconds=seconds,
+    )
 
 
 def ct_image_side(patient, vertices, triangles, seed, report):
@@ -165,12 +209,19 @@ def ct_image_side(patient, vertices, triangles, seed, report):
     detection = detect_marker_spheres(volume, segmentation)
     centres = detection.ok_centres
     if len(centres) != 4:
-        raise RuntimeError("the demo's CT phantom did not give 4 clean marker spheres: " + "; ".join(detection.warnings))
+        raise RuntimeError(
+            "the demo's CT phantom did not give 4 clean marker spheres: " + "; ".join(detection.warnings)
+        )
     order, _ = order_to_tool(centres, patient.markers_reference)
     automatic = centres[order]
     seconds["marker_spheres"] = time.perf_counter() - clock
     report("marker spheres", 3, 3)
     offsets = signed_distance_to_mesh(surface.points, vertices, triangles, np.random.default_rng(seed))
-    return ImageSide(ipc=surface.points, automatic_markers=automatic,
-                     marker_errors_mm=np.linalg.norm(automatic - truth.marker_centres, axis=1), seconds=seconds,
-                     ipc_offset_mm=float(np.median(offsets)), warnings=detection.warnings)
+    return ImageSide(
+        ipc=surface.points,
+        automatic_markers=automatic,
+        marker_errors_mm=np.linalg.norm(automatic - truth.marker_centres, axis=1),
+        seconds=seconds,
+        ipc_offset_mm=float(np.median(offsets)),
+        warnings=detection.warnings,
+    )

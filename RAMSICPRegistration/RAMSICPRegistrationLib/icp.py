@@ -132,8 +132,9 @@ class MatchingRanges:
         return match
 
 
-def icp(index, moving_points, initial_transform, max_iterations=DEFAULT_MAX_ITERATIONS,
-        tolerance_mm=DEFAULT_TOLERANCE_MM):
+def icp(
+    index, moving_points, initial_transform, max_iterations=DEFAULT_MAX_ITERATIONS, tolerance_mm=DEFAULT_TOLERANCE_MM
+):
     """Standard point-to-point ICP (Besl and McKay 1992) of patient points onto the whole IPC.
 
     Args:
@@ -152,8 +153,16 @@ def icp(index, moving_points, initial_transform, max_iterations=DEFAULT_MAX_ITER
     return _iterate(index, cr_points, match, initial_transform, max_iterations, tolerance_mm, scale=None)
 
 
-def ramsicp(index, moving_points, coarse_transform, scale, min_radius_mm=DEFAULT_MIN_RADIUS_MM,
-            max_iterations=DEFAULT_MAX_ITERATIONS, tolerance_mm=DEFAULT_TOLERANCE_MM, ranges=None):
+def ramsicp(
+    index,
+    moving_points,
+    coarse_transform,
+    scale,
+    min_radius_mm=DEFAULT_MIN_RADIUS_MM,
+    max_iterations=DEFAULT_MAX_ITERATIONS,
+    tolerance_mm=DEFAULT_TOLERANCE_MM,
+    ranges=None,
+):
     """RAMSICP fine registration (eqs. 6-9) after CR, for one scale factor L (eq. 8).
 
     Args:
@@ -169,8 +178,9 @@ def ramsicp(index, moving_points, coarse_transform, scale, min_radius_mm=DEFAULT
     cr_points = apply_transform(coarse_transform, moving_points)
     if ranges is None:
         ranges = MatchingRanges(index, cr_points, scale, min_radius_mm)
-    return _iterate(index, cr_points, ranges.matcher(scale), coarse_transform, max_iterations, tolerance_mm,
-                    scale=float(scale))
+    return _iterate(
+        index, cr_points, ranges.matcher(scale), coarse_transform, max_iterations, tolerance_mm, scale=float(scale)
+    )
 
 
 def _iterate(index, cr_points, match, initial_transform, max_iterations, tolerance_mm, scale):
@@ -202,4 +212,5 @@ def _check_scale(scale):
     if not np.isfinite(scale) or scale < 1.0:
         raise ValueError(
             f"scale factor L = {scale}: must be a finite number >= 1 (below 1 the matching range would "
-            "exclude the closest IPC point, eq. 7); the paper sweeps 1 to 5")
+            "exclude the closest IPC point, eq. 7); the paper sweeps 1 to 5"
+        )

@@ -43,8 +43,14 @@ class MarkerSphere:
     surface_points: int
 
     def to_dict(self):
-        return {"centre": self.centre.tolist(), "radius_mm": self.radius_mm, "residual_mm": self.residual_mm,
-                "coverage": self.coverage, "status": self.status, "surface_points": self.surface_points}
+        return {
+            "centre": self.centre.tolist(),
+            "radius_mm": self.radius_mm,
+            "residual_mm": self.residual_mm,
+            "coverage": self.coverage,
+            "status": self.status,
+            "surface_points": self.surface_points,
+        }
 
 
 @dataclass(frozen=True)
@@ -83,15 +89,19 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
     warnings = []
     for number, sphere in enumerate(spheres):
         if sphere.status != "ok":
-            warnings.append(f"sphere {number} at ({', '.join(f'{v:.1f}' for v in sphere.centre)}) is {sphere.status}: "
-                            f"radius {sphere.radius_mm:.2f} mm, residual {sphere.residual_mm:.2f} mm, "
-                            f"{100 * sphere.coverage:.0f} % of its surface seen; check it in the CT and move its "
-                            "centre by hand, or leave it out of the coarse registration")
+            warnings.append(
+                f"sphere {number} at ({', '.join(f'{v:.1f}' for v in sphere.centre)}) is {sphere.status}: "
+                f"radius {sphere.radius_mm:.2f} mm, residual {sphere.residual_mm:.2f} mm, "
+                f"{100 * sphere.coverage:.0f} % of its surface seen; check it in the CT and move its "
+                "centre by hand, or leave it out of the coarse registration"
+            )
     good = sum(sphere.status == "ok" for sphere in spheres)
     if len(spheres) != expected:
-        warnings.append(f"found {len(spheres)} marker-sphere candidates ({rejected} other objects rejected by size or "
-                        f"shape), expected {expected}: check that the reference body is in the field of view and the "
-                        "threshold is below the spheres' brightness, or place the missing centres by hand")
+        warnings.append(
+            f"found {len(spheres)} marker-sphere candidates ({rejected} other objects rejected by size or "
+            f"shape), expected {expected}: check that the reference body is in the field of view and the "
+            "threshold is below the spheres' brightness, or place the missing centres by hand"
+        )
     elif good < expected:
         warnings.append(f"only {good} of {expected} spheres are clean; the coarse registration needs at least 3")
     for warning in warnings:
@@ -110,13 +120,18 @@ def fit_sphere(points, inlier_limit_mm=0.1):
         centre (3,), radius (mm), RMS residual of the inliers (mm), and the boolean inlier mask (N,).
     """
     centre, radius = _algebraic_fit(points)
-    robust = optimize.least_squares(lambda p: np.linalg.norm(points - p[:3], axis=1) - p[3],
-                                    np.append(centre, radius), loss="cauchy", f_scale=inlier_limit_mm)
+    robust = optimize.least_squares(
+        lambda p: np.linalg.norm(points - p[:3], axis=1) - p[3],
+        np.append(centre, radius),
+        loss="cauchy",
+        f_scale=inlier_limit_mm,
+    )
     residuals = np.linalg.norm(points - robust.x[:3], axis=1) - robust.x[3]
     spread = 1.4826 * np.median(np.abs(residuals - np.median(residuals)))
     keep = np.abs(residuals) <= max(3.0 * spread, inlier_limit_mm)
-    refined = optimize.least_squares(lambda p: np.linalg.norm(points[keep] - p[:3], axis=1) - p[3], robust.x,
-                                     method="lm")
+    refined = optimize.least_squares(
+        lambda p: np.linalg.norm(points[keep] - p[:3], axis=1) - p[3], robust.x, method="lm"
+    )
     centre, radius = refined.x[:3], abs(refined.x[3])
     rms = float(np.sqrt(np.mean((np.linalg.norm(points[keep] - centre, axis=1) - radius) ** 2)))
     return centre, float(radius), rms, keep
@@ -170,8 +185,14 @@ def _fit_candidate(volume, segmentation, label, region, radius):
         status = "partial"  # what does not fit lies inside the sphere: a part of it is missing
     else:
         status = "deformed"
-    return MarkerSphere(centre=centre, radius_mm=fitted_radius, residual_mm=rms, coverage=coverage, status=status,
-                        surface_points=int(keep.sum()))
+    return MarkerSphere(
+        centre=centre,
+        radius_mm=fitted_radius,
+        residual_mm=rms,
+        coverage=coverage,
+        status=status,
+        surface_points=int(keep.sum()),
+    )
 
 
 def _algebraic_fit(points):

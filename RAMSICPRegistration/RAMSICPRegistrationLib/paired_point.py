@@ -54,12 +54,14 @@ def fit_rigid_transform(source, target, weights=None, source_name="source", targ
     if source.shape != target.shape:
         raise ValueError(
             f"{source_name} has {source.shape[0]} points but {target_name} has {target.shape[0]}; "
-            "give the same points in the same order in both frames")
+            "give the same points in the same order in both frames"
+        )
     if weights is not None:
         weights = np.array(weights, dtype=np.float64)
         if weights.shape != (source.shape[0],) or not np.isfinite(weights).all() or (weights < 0).any():
             raise ValueError(
-                f"weights: expected {source.shape[0]} finite non-negative numbers, got shape {weights.shape}")
+                f"weights: expected {source.shape[0]} finite non-negative numbers, got shape {weights.shape}"
+            )
         if np.count_nonzero(weights) < 3:
             raise ValueError("weights: at least 3 points need a positive weight")
     used = slice(None) if weights is None else weights > 0

@@ -20,7 +20,8 @@ SPACES = ("RAS", "LPS")
 _RAS_FROM_LPS = np.array([-1.0, -1.0, 1.0])
 MARKUPS_SCHEMA = (
     "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/"
-    "markups-schema-v1.0.3.json#")
+    "markups-schema-v1.0.3.json#"
+)
 POINT_SUFFIXES = (".mrk.json", ".json", ".fcsv", ".csv", ".txt", ".npy")
 
 
@@ -61,8 +62,14 @@ def read_points(path, untagged_space="RAS"):
     if not path.is_file():
         raise PointFileError(path, "no such file")
     suffix = _suffix(path)
-    readers = {".mrk.json": _read_markups_json, ".json": _read_markups_json, ".fcsv": _read_fcsv,
-               ".csv": _read_text, ".txt": _read_text, ".npy": _read_npy}
+    readers = {
+        ".mrk.json": _read_markups_json,
+        ".json": _read_markups_json,
+        ".fcsv": _read_fcsv,
+        ".csv": _read_text,
+        ".txt": _read_text,
+        ".npy": _read_npy,
+    }
     if suffix not in readers:
         raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
     try:
@@ -145,9 +152,14 @@ def _write_markups_json(path, points, labels):
     lps = to_ras(points, "LPS")
     control_points = [
         {"id": str(i + 1), "label": label, "position": [float(v) for v in point], "positionStatus": "defined"}
-        for i, (label, point) in enumerate(zip(labels, lps))]
-    document = {"@schema": MARKUPS_SCHEMA, "markups": [
-        {"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm", "controlPoints": control_points}]}
+        for i, (label, point) in enumerate(zip(labels, lps))
+    ]
+    document = {
+        "@schema": MARKUPS_SCHEMA,
+        "markups": [
+            {"type": "Fiducial", "coordinateSystem": "LPS", "coordinateUnits": "mm", "controlPoints": control_points}
+        ],
+    }
     path.write_text(json.dumps(document, indent=2), encoding="utf-8")
 
 
@@ -182,8 +194,11 @@ def _read_fcsv(path):
 
 def _write_fcsv(path, points, labels):
     lps = to_ras(points, "LPS")
-    lines = ["# Markups fiducial file version = 4.11", "# CoordinateSystem = LPS",
-             "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID"]
+    lines = [
+        "# Markups fiducial file version = 4.11",
+        "# CoordinateSystem = LPS",
+        "# columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID",
+    ]
     for i, (label, (x, y, z)) in enumerate(zip(labels, lps)):
         lines.append(f"{i + 1},{x:.17g},{y:.17g},{z:.17g},0,0,0,1,1,1,0,{label},,")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -68,6 +68,7 @@ class RegistrationResult:
 
     def to_dict(self):
         """JSON-ready dictionary with every figure of the result."""
+
         def listed(value):
             return None if value is None else np.asarray(value).tolist()
 
@@ -92,9 +93,21 @@ class RegistrationResult:
         }
 
 
-def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targets_patient=None,
-             method="cr-ramsicp", scale=None, sweep=False, scales=PAPER_SCALES, policy=None, fle_mm=None,
-             min_radius_mm=DEFAULT_MIN_RADIUS_MM):
+def register(
+    ipc,
+    ppc,
+    markers_image,
+    markers_patient,
+    targets_image=None,
+    targets_patient=None,
+    method="cr-ramsicp",
+    scale=None,
+    sweep=False,
+    scales=PAPER_SCALES,
+    policy=None,
+    fle_mm=None,
+    min_radius_mm=DEFAULT_MIN_RADIUS_MM,
+):
     """Register the patient (reference frame) to the image: CR, CR-ICP or CR-RAMSICP.
 
     Args:
@@ -121,8 +134,12 @@ def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targe
     ppc = as_points(ppc, "PPC (probe points)", min_count=3)
     check_not_collinear(ppc, "PPC (probe points)")
     targets_patient, targets_image = _check_targets(targets_patient, targets_image)
-    coarse = fit_rigid_transform(markers_patient, markers_image, source_name="markers in the patient (reference)",
-                                 target_name="markers in the image")
+    coarse = fit_rigid_transform(
+        markers_patient,
+        markers_image,
+        source_name="markers in the patient (reference)",
+        target_name="markers in the image",
+    )
     warnings = _marker_warnings(coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
 
     transform, fine, entries, chosen_policy = coarse.transform, None, (), None
@@ -131,8 +148,9 @@ def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targe
     elif method == "cr-ramsicp":
         if sweep:
             chosen_policy = policy or ("targets" if targets_patient is not None else "rms-plateau")
-            entries = sweep_scales(index, ppc, coarse.transform, scales, targets_patient, targets_image,
-                                   min_radius_mm=min_radius_mm)
+            entries = sweep_scales(
+                index, ppc, coarse.transform, scales, targets_patient, targets_image, min_radius_mm=min_radius_mm
+            )
             chosen = entries[select_scale(entries, chosen_policy, DEFAULT_SCALE if scale is None else scale)]
             fine = chosen.result
             warnings += _sweep_warnings(entries, chosen, chosen_policy)
@@ -140,13 +158,20 @@ def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targe
             if policy not in (None, "fixed"):
                 raise ValueError(f"policy {policy!r} chooses L from a sweep; ask for the sweep, or give a scale")
             chosen_policy = "fixed"
-            fine = ramsicp(index, ppc, coarse.transform, DEFAULT_SCALE if scale is None else float(scale),
-                           min_radius_mm=min_radius_mm)
+            fine = ramsicp(
+                index,
+                ppc,
+                coarse.transform,
+                DEFAULT_SCALE if scale is None else float(scale),
+                min_radius_mm=min_radius_mm,
+            )
     if fine is not None:
         transform = fine.transform
         if not fine.converged:
-            warnings.append(f"{method} stopped after {fine.iterations} iterations before the RMS settled "
-                            "(change above 1e-5 mm); the result may still move: check the CR and the probe points")
+            warnings.append(
+                f"{method} stopped after {fine.iterations} iterations before the RMS settled "
+                "(change above 1e-5 mm); the result may still move: check the CR and the probe points"
+            )
 
     residuals = surface_residuals(index, transform, ppc)
     warnings += _outlier_warnings(residuals)
@@ -165,20 +190,34 @@ def register(ipc, ppc, markers_image, markers_patient, targets_image=None, targe
     for warning in warnings:
         logger.info("registration warning: %s", warning)
     return RegistrationResult(
-        method=method, reference_to_image=transform, coarse_reference_to_image=coarse.transform,
-        fre_mm=coarse.fre_mm, marker_residuals_mm=coarse.residuals_mm, ppc_rms_mm=float(np.sqrt(np.mean(residuals**2))),
-        residuals_mm=residuals, tre_mm=tre, target_errors_mm=errors, predicted_cr_tre_mm=predicted,
-        fle_mm=float(fle), scale=None if fine is None else fine.scale, scale_policy=chosen_policy,
-        iterations=None if fine is None else fine.iterations, converged=None if fine is None else fine.converged,
-        sweep=entries, warnings=tuple(warnings))
+        method=method,
+        reference_to_image=transform,
+        coarse_reference_to_image=coarse.transform,
+        fre_mm=coarse.fre_mm,
+        marker_residuals_mm=coarse.residuals_mm,
+        ppc_rms_mm=float(np.sqrt(np.mean(residuals**2))),
+        residuals_mm=residuals,
+        tre_mm=tre,
+        target_errors_mm=errors,
+        predicted_cr_tre_mm=predicted,
+        fle_mm=float(fle),
+        scale=None if fine is None else fine.scale,
+        scale_policy=chosen_policy,
+        iterations=None if fine is None else fine.iterations,
+        converged=None if fine is None else fine.converged,
+        sweep=entries,
+        warnings=tuple(warnings),
+    )
 
 
 def select_scale(entries, policy, fixed_scale=DEFAULT_SCALE):
     """Index of the chosen entry of a sweep (a tuple of SweepEntry) under ``policy`` (see POLICIES)."""
     if policy == "targets":
         if entries[0].tre_mm is None:
-            raise ValueError("policy 'targets' picks the L of minimum TRE and needs target points; "
-                             "give targets or use 'rms-plateau' or 'fixed'")
+            raise ValueError(
+                "policy 'targets' picks the L of minimum TRE and needs target points; "
+                "give targets or use 'rms-plateau' or 'fixed'"
+            )
         return int(np.argmin([entry.tre_mm for entry in entries]))
     if policy == "fixed":
         return int(np.argmin([abs(entry.scale - fixed_scale) for entry in entries]))
@@ -196,8 +235,10 @@ def _check_targets(targets_patient, targets_image):
     targets_patient = as_points(targets_patient, "targets in the patient (reference)", min_count=1)
     targets_image = as_points(targets_image, "targets in the image", min_count=1)
     if targets_patient.shape != targets_image.shape:
-        raise ValueError(f"targets: {len(targets_patient)} in the patient but {len(targets_image)} in the image; "
-                         "give the same targets in the same order")
+        raise ValueError(
+            f"targets: {len(targets_patient)} in the patient but {len(targets_image)} in the image; "
+            "give the same targets in the same order"
+        )
     return targets_patient, targets_image
 
 
@@ -208,9 +249,11 @@ def _marker_warnings(coarse, markers_patient, markers_image):
     spacing_patient = np.linalg.norm(markers_patient[:, None] - markers_patient[None], axis=2)
     spacing_image = np.linalg.norm(markers_image[:, None] - markers_image[None], axis=2)
     mismatch = np.abs(spacing_patient - spacing_image).max()
-    return [f"Marker fit is poor: FRE {coarse.fre_mm:.2f} mm (marker {worst} is off by "
-            f"{coarse.residuals_mm[worst]:.2f} mm; inter-marker distances differ by up to {mismatch:.1f} mm). "
-            "Check that the image markers are in the same order as the tool's and centred on the spheres."]
+    return [
+        f"Marker fit is poor: FRE {coarse.fre_mm:.2f} mm (marker {worst} is off by "
+        f"{coarse.residuals_mm[worst]:.2f} mm; inter-marker distances differ by up to {mismatch:.1f} mm). "
+        "Check that the image markers are in the same order as the tool's and centred on the spheres."
+    ]
 
 
 def _outlier_warnings(residuals):
@@ -219,15 +262,21 @@ def _outlier_warnings(residuals):
     if not far.size:
         return []
     listed = ", ".join(f"{i} ({residuals[i]:.2f} mm)" for i in far[:10])
-    return [f"{far.size} probe point(s) lie far from the bone surface after registration: {listed}. "
-            "Exclude them if they were not touched on bone, and register again."]
+    return [
+        f"{far.size} probe point(s) lie far from the bone surface after registration: {listed}. "
+        "Exclude them if they were not touched on bone, and register again."
+    ]
 
 
 def _sweep_warnings(entries, chosen, policy):
     warnings = []
     if policy == "targets":
-        warnings.append("L was chosen by the minimum TRE over the sweep (the paper's choice): that uses the target "
-                        "points and is for evaluation; in surgery use the 'fixed' or 'rms-plateau' policy")
+        warnings.append(
+            "L was chosen by the minimum TRE over the sweep (the paper's choice): that uses the target "
+            "points and is for evaluation; in surgery use the 'fixed' or 'rms-plateau' policy"
+        )
     if chosen.scale == entries[-1].scale and len(entries) > 1 and policy != "fixed":
-        warnings.append(f"the chosen L = {chosen.scale:g} is the largest of the sweep; the result is close to plain ICP")
+        warnings.append(
+            f"the chosen L = {chosen.scale:g} is the largest of the sweep; the result is close to plain ICP"
+        )
     return warnings

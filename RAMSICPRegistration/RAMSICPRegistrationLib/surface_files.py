@@ -94,8 +94,9 @@ def write_surface(path, vertices, triangles=None):
     else:
         triangles = np.asarray(triangles, dtype=np.int64)
         offsets = np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64)
-        cells.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True),
-                      numpy_to_vtkIdTypeArray(triangles.ravel().copy(), deep=True))
+        cells.SetData(
+            numpy_to_vtkIdTypeArray(offsets, deep=True), numpy_to_vtkIdTypeArray(triangles.ravel().copy(), deep=True)
+        )
         mesh.SetPolys(cells)
     writer = _writer(suffix)
     if suffix == ".vtp":
@@ -122,36 +123,46 @@ def write_surface(path, vertices, triangles=None):
 def _reader(suffix):
     if suffix == ".vtk":
         from vtkmodules.vtkIOLegacy import vtkPolyDataReader
+
         return vtkPolyDataReader(), lambda reader, mesh: reader.GetHeader()
     if suffix == ".vtp":
         from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
+
         return vtkXMLPolyDataReader(), _space_from_field_data
     if suffix == ".stl":
         from vtkmodules.vtkIOGeometry import vtkSTLReader
+
         return vtkSTLReader(), lambda reader, mesh: reader.GetHeader()
     if suffix == ".ply":
         from vtkmodules.vtkIOPLY import vtkPLYReader
+
         return vtkPLYReader(), _ply_comments
     from vtkmodules.vtkIOGeometry import vtkOBJReader
+
     return vtkOBJReader(), lambda reader, mesh: reader.GetComment()
 
 
 def _writer(suffix):
     if suffix == ".vtk":
         from vtkmodules.vtkIOLegacy import vtkPolyDataWriter
+
         return vtkPolyDataWriter()
     if suffix == ".vtp":
         from vtkmodules.vtkIOXML import vtkXMLPolyDataWriter
+
         return vtkXMLPolyDataWriter()
     if suffix == ".stl":
         from vtkmodules.vtkIOGeometry import vtkSTLWriter
+
         writer = vtkSTLWriter()
         writer.SetFileTypeToBinary()
         return writer
     if suffix == ".ply":
         from vtkmodules.vtkIOPLY import vtkPLYWriter
+
         return vtkPLYWriter()
     from vtkmodules.vtkIOGeometry import vtkOBJWriter
+
     return vtkOBJWriter()
 
 

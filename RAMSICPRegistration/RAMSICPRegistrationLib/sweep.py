@@ -21,8 +21,13 @@ class SweepEntry:
     tre_mm: float = None
 
     def to_dict(self):
-        return {"scale": self.scale, "rms_mm": self.result.rms_mm, "tre_mm": self.tre_mm,
-                "iterations": self.result.iterations, "converged": self.result.converged}
+        return {
+            "scale": self.scale,
+            "rms_mm": self.result.rms_mm,
+            "tre_mm": self.tre_mm,
+            "iterations": self.result.iterations,
+            "converged": self.result.converged,
+        }
 
 
 def make_scales(start=1.0, stop=5.0, step=0.2):
@@ -33,9 +38,17 @@ def make_scales(start=1.0, stop=5.0, step=0.2):
     return tuple(np.round(start + step * np.arange(count), 6))
 
 
-def sweep_scales(index, patient_points, coarse_transform, scales=PAPER_SCALES, targets_patient=None,
-                 targets_image=None, min_radius_mm=DEFAULT_MIN_RADIUS_MM, max_iterations=DEFAULT_MAX_ITERATIONS,
-                 tolerance_mm=DEFAULT_TOLERANCE_MM):
+def sweep_scales(
+    index,
+    patient_points,
+    coarse_transform,
+    scales=PAPER_SCALES,
+    targets_patient=None,
+    targets_image=None,
+    min_radius_mm=DEFAULT_MIN_RADIUS_MM,
+    max_iterations=DEFAULT_MAX_ITERATIONS,
+    tolerance_mm=DEFAULT_TOLERANCE_MM,
+):
     """Run RAMSICP for every L in ``scales`` from one CR result, sharing the KD-tree and one ball query.
 
     Args:
@@ -52,8 +65,15 @@ def sweep_scales(index, patient_points, coarse_transform, scales=PAPER_SCALES, t
     ranges = MatchingRanges(index, cr_points, max(scales), min_radius_mm)
     entries = []
     for scale in scales:
-        result = ramsicp(index, patient_points, coarse_transform, scale, max_iterations=max_iterations,
-                         tolerance_mm=tolerance_mm, ranges=ranges)
+        result = ramsicp(
+            index,
+            patient_points,
+            coarse_transform,
+            scale,
+            max_iterations=max_iterations,
+            tolerance_mm=tolerance_mm,
+            ranges=ranges,
+        )
         tre = None
         if targets_patient is not None:
             tre = target_registration_error(result.transform, targets_patient, targets_image)

@@ -29,12 +29,10 @@ def as_points(values, name, min_count=1):
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name}: expected an (N, 3) array of x, y, z in mm, got shape {points.shape}")
     if points.shape[0] < min_count:
-        raise ValueError(
-            f"{name}: {points.shape[0]} point(s) given, at least {min_count} needed; collect more points")
+        raise ValueError(f"{name}: {points.shape[0]} point(s) given, at least {min_count} needed; collect more points")
     bad_rows = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad_rows.size:
-        raise ValueError(
-            f"{name}: point(s) {_row_list(bad_rows)} contain NaN or infinity; remove or re-collect them")
+        raise ValueError(f"{name}: point(s) {_row_list(bad_rows)} contain NaN or infinity; remove or re-collect them")
     return points
 
 
@@ -48,7 +46,8 @@ def check_distinct(points, name):
         first, second = sorted((int(first), int(second)))
         raise ValueError(
             f"{name}: points {first} and {second} are the same point "
-            f"({distances[first, second]:.2g} mm apart); each fiducial must be a distinct location")
+            f"({distances[first, second]:.2g} mm apart); each fiducial must be a distinct location"
+        )
 
 
 def check_not_collinear(points, name):
@@ -62,7 +61,8 @@ def check_not_collinear(points, name):
     if singular_values[0] == 0.0 or singular_values[1] < COLLINEARITY_RATIO * singular_values[0]:
         raise ValueError(
             f"{name}: the points are (nearly) collinear, so the rotation about their line is undetermined; "
-            "use at least 3 points that span a triangle")
+            "use at least 3 points that span a triangle"
+        )
 
 
 def as_transform(values, name):

@@ -48,8 +48,17 @@ class VirtualPatient:
     cut_height_mm: float
 
     @classmethod
-    def from_mesh(cls, vertices, triangles, markers_reference, medial_direction, seed=0,
-                  ipc_points=200_000, cut_below_top_mm=40.0, bracket_offset_mm=(75.0, 45.0)):
+    def from_mesh(
+        cls,
+        vertices,
+        triangles,
+        markers_reference,
+        medial_direction,
+        seed=0,
+        ipc_points=200_000,
+        cut_below_top_mm=40.0,
+        bracket_offset_mm=(75.0, 45.0),
+    ):
         """Build the virtual patient from a closed bone mesh (RAS mm, +z superior).
 
         Args:
@@ -70,10 +79,15 @@ class VirtualPatient:
         targets = _cut_end_points(ipc, cut_height, medial, anterior)
         sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, medial, anterior)
         shaft_centre = _section_centre(ipc, cut_height - 60.0)
-        reference_to_image = _reference_body_pose(markers_reference, shaft_centre, -medial, anterior,
-                                                  bracket_offset_mm)
-        return cls(ipc=ipc, reference_to_image=reference_to_image, markers_reference=markers_reference,
-                   targets_image=targets, sub_area_points=sub_areas, cut_height_mm=float(cut_height))
+        reference_to_image = _reference_body_pose(markers_reference, shaft_centre, -medial, anterior, bracket_offset_mm)
+        return cls(
+            ipc=ipc,
+            reference_to_image=reference_to_image,
+            markers_reference=markers_reference,
+            targets_image=targets,
+            sub_area_points=sub_areas,
+            cut_height_mm=float(cut_height),
+        )
 
     @property
     def markers_image(self):
@@ -96,8 +110,9 @@ class VirtualPatient:
             tre_per_mm[trial] = target_registration_error(coarse, targets_reference, self.targets_image)
         return float(cr_tre_mm / tre_per_mm.mean())
 
-    def simulate_trial(self, rng, marker_fle_mm, probe_noise_mm=0.25, points_per_area=5, sub_areas=None,
-                       target_touches=10):
+    def simulate_trial(
+        self, rng, marker_fle_mm, probe_noise_mm=0.25, points_per_area=5, sub_areas=None, target_touches=10
+    ):
         """Simulate one registration's acquisitions.
 
         Args:
@@ -121,9 +136,14 @@ class VirtualPatient:
         markers_image = self.markers_image + _isotropic_noise(rng, (4, 3), marker_fle_mm)
         targets_patient = apply_transform(image_to_reference, self.targets_image)
         targets_patient = targets_patient + _isotropic_noise(rng, (4, 3), probe_noise_mm / np.sqrt(target_touches))
-        return TrialData(ppc=ppc, sub_area=np.array(labels), markers_patient=self.markers_reference.copy(),
-                         markers_image=markers_image, targets_patient=targets_patient,
-                         targets_image=self.targets_image.copy())
+        return TrialData(
+            ppc=ppc,
+            sub_area=np.array(labels),
+            markers_patient=self.markers_reference.copy(),
+            markers_image=markers_image,
+            targets_patient=targets_patient,
+            targets_image=self.targets_image.copy(),
+        )
 
 
 def sample_surface(vertices, triangles, count, rng):

@@ -45,17 +45,23 @@ def check_volume(voxels, ijk_to_ras, name="CT volume"):
     """Validate a volume; returns a CTVolume. Raises ValueError saying what to change."""
     voxels = np.asarray(voxels)
     if voxels.ndim != 3:
-        raise ValueError(f"{name}: expected a 3-D volume, got {voxels.ndim} dimension(s) of shape {voxels.shape}; "
-                         "load a CT series, not a single slice or a time series")
+        raise ValueError(
+            f"{name}: expected a 3-D volume, got {voxels.ndim} dimension(s) of shape {voxels.shape}; "
+            "load a CT series, not a single slice or a time series"
+        )
     if min(voxels.shape) < 2:
-        raise ValueError(f"{name}: shape {voxels.shape} is empty or flat; the CT needs at least 2 voxels along each axis")
+        raise ValueError(
+            f"{name}: shape {voxels.shape} is empty or flat; the CT needs at least 2 voxels along each axis"
+        )
     ijk_to_ras = np.asarray(ijk_to_ras, dtype=np.float64)
     if ijk_to_ras.shape != (4, 4) or not np.isfinite(ijk_to_ras).all():
         raise ValueError(f"{name}: the voxel-to-RAS matrix must be a finite 4x4 matrix")
     spacing = np.linalg.norm(ijk_to_ras[:3, :3], axis=0)
     if (spacing <= 1e-6).any() or abs(np.linalg.det(ijk_to_ras[:3, :3])) <= 1e-12:
-        raise ValueError(f"{name}: voxel spacing {np.round(spacing, 6).tolist()} mm has a zero; "
-                         "fix the spacing in the file header (e.g. 0.5 0.5 0.625)")
+        raise ValueError(
+            f"{name}: voxel spacing {np.round(spacing, 6).tolist()} mm has a zero; "
+            "fix the spacing in the file header (e.g. 0.5 0.5 0.625)"
+        )
     return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras)
 
 
