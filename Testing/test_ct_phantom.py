@@ -6,7 +6,7 @@ from pathlib import Path
 import nibabel
 import numpy as np
 from RAMSICPRegistrationLib.cli import main
-from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh
+from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh, write_phantom
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
 from RAMSICPRegistrationLib.point_files import read_points
 from RAMSICPRegistrationLib.surface_files import read_surface_points
@@ -36,14 +36,29 @@ def test_phantom_ipc_lies_on_the_true_bone_surface(tibia_phantom):
     assert 80_000 < len(surface.points) < 200_000  # the paper's IPC: 194,568 points (both cortical walls)
 
 
-def test_phantom_writes_nrrd_and_truth(tibia_phantom, tmp_path):
+def test_phantom_writes_nrrd_truth_and_surface(tibia_phantom, tmp_path):
     volume, truth = tibia_phantom
-    save_nrrd(tmp_path / "phantom.nrrd", volume)
-    loaded = load_volume(tmp_path / "phantom.nrrd")
+    paths = write_phantom(tmp_path, volume, truth)
+    loaded = load_volume(paths["ct"])
     np.testing.assert_allclose(loaded.ijk_to_ras, volume.ijk_to_ras)
-    document = json.loads(json.dumps(truth.to_dict()))
+    np.testing.assert_array_equal(loaded.voxels, volume.voxels)
+    document = json.loads(paths["truth"].read_text())
     np.testing.assert_allclose(document["marker_centres"], truth.marker_centres)
+    np.testing.assert_allclose(document["reference_to_image"], truth.reference_to_image)
     assert document["spacing_mm"] == list(PAPER_SPACING_MM)
+    surface = read_surface_points(tmp_path / document["bone_surface_file"])
+    np.testing.assert_allclose(surface, truth.bone_vertices, atol=1e-9)
+
+
+def test_phantom_is_deterministic_under_its_seed(tibia_patient):
+    from RAMSICPRegistrationLib.ct_phantom import make_ct_phantom
+    from RAMSICPRegistrationLib.package_data import bone_mesh_path
+    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+
+    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
+    first, _ = make_ct_phantom(tibia_patient, vertices, triangles, seed=3, below_cut_mm=20.0)
+    second, _ = make_ct_phantom(tibia_patient, vertices, triangles, seed=3, below_cut_mm=20.0)
+    np.testing.assert_array_equal(first.voxels, second.voxels)
 
 
 def test_cli_ipc_on_the_phantom(tibia_phantom, tibia_patient, tmp_path, capsys):

@@ -10,15 +10,17 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .ct_phantom import make_ct_phantom, write_phantom
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, resample_points, segment_bone
 from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .marker_spheres import detect_marker_spheres, order_to_tool
-from .package_data import BONES, DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
 from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .registration import METHODS, POLICIES, register
-from .surface_files import read_surface_points, write_surface
+from .surface_files import read_surface_mesh, read_surface_points, write_surface
 from .surface_index import SurfaceIndex
 from .sweep import make_scales
+from .virtual_patient import VirtualPatient
 from .volume_io import load_volume
 
 EXIT_BAD_INPUT = 2
@@ -127,6 +129,17 @@ def _parser():
     )
     ipc.add_argument("--json", type=Path, help="write counts, thresholds, spheres and timings as JSON")
     ipc.set_defaults(run=_run_ipc)
+
+    phantom = commands.add_parser("phantom", help="write a CT phantom (NRRD) of a shipped bone with its ground truth")
+    phantom.add_argument("--out", type=Path, required=True, help="folder for ct.nrrd, truth.json, bone_surface.vtp")
+    phantom.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
+    phantom.add_argument("--seed", type=int, default=0)
+    phantom.add_argument("--noise", type=float, default=25.0, help="image noise, HU (default 25)")
+    phantom.add_argument(
+        "--partial", type=int, choices=range(4), metavar="N", help="make marker N (0-3) partial: a cap missing"
+    )
+    phantom.add_argument("--deformed", type=int, choices=range(4), metavar="N", help="make marker N (0-3) deformed")
+    phantom.set_defaults(run=_run_phantom)
     return parser
 
 
@@ -354,6 +367,37 @@ def _run_ipc(arguments):
             "seconds": seconds,
         }
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    return 0
+
+
+def _run_phantom(arguments):
+    defects = {}
+    if arguments.partial is not None:
+        defects[arguments.partial] = "partial"
+    if arguments.deformed is not None:
+        if arguments.deformed in defects:
+            raise ValueError("--partial and --deformed name the same marker; pick two different ones")
+        defects[arguments.deformed] = "deformed"
+    vertices, triangles = read_surface_mesh(bone_mesh_path(arguments.bone), untagged_space="RAS")
+    patient = VirtualPatient.from_mesh(
+        vertices,
+        triangles,
+        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
+        BONES[arguments.bone]["medial"],
+        seed=arguments.seed,
+    )
+    clock = time.perf_counter()
+    volume, truth = make_ct_phantom(
+        patient, vertices, triangles, seed=arguments.seed, noise_hu=arguments.noise, defects=defects
+    )
+    paths = write_phantom(arguments.out, volume, truth)
+    shape = "x".join(str(n) for n in volume.voxels.shape)
+    print(
+        f"CT phantom of the {arguments.bone}: {shape} voxels of 0.5 x 0.5 x 0.625 mm, "
+        f"{time.perf_counter() - clock:.1f} s"
+    )
+    for name, path in paths.items():
+        print(f"  {name:<13} {path}")
     return 0
 
 

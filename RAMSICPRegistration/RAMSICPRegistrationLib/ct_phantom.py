@@ -145,6 +145,33 @@ def make_ct_phantom(
     return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras), truth
 
 
+def write_phantom(directory, volume, truth):
+    """Write a phantom to ``directory``: ``ct.nrrd`` (LPS, int16), ``truth.json`` and ``bone_surface.vtp``.
+
+    ``truth.json`` holds the true marker centres and ``ReferenceToImage`` (RAS mm), the marker radius and
+    defects, the rendering settings, and the name of the bone-surface file.
+    Returns the paths written, by name.
+    """
+    import json
+    from pathlib import Path
+
+    from .surface_files import write_surface
+    from .volume_io import save_nrrd
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "ct": directory / "ct.nrrd",
+        "truth": directory / "truth.json",
+        "bone_surface": directory / "bone_surface.vtp",
+    }
+    save_nrrd(paths["ct"], volume)
+    write_surface(paths["bone_surface"], truth.bone_vertices, truth.bone_triangles)
+    document = {**truth.to_dict(), "bone_surface_file": paths["bone_surface"].name, "ct_file": paths["ct"].name}
+    paths["truth"].write_text(json.dumps(document, indent=2), encoding="utf-8")
+    return paths
+
+
 def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000):
     """Signed distance (mm, positive outside) of (N, 3) points near a closed mesh's surface.
 
@@ -251,6 +278,8 @@ def _box_around(volume, low_ras, high_ras):
     ijk = volume.ras_to_ijk_points(corners)
     low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
     high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(volume.voxels.shape) - 1)
+    if (high < low).any():
+        return None, None  # the object lies outside the field of view
     box = tuple(slice(a, b + 1) for a, b in zip(low, high))
     grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(low, high)], indexing="ij"), axis=-1)
     return box, volume.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape)
@@ -264,6 +293,8 @@ def _blend(volume, box, signed_distance, hu):
 def _paint_capsule(volume, start, end, radius, hu):
     pad = radius + 2.0
     box, ras = _box_around(volume, np.minimum(start, end) - pad, np.maximum(start, end) + pad)
+    if box is None:
+        return
     axis = end - start
     t = np.clip(((ras - start) @ axis) / (axis @ axis), 0.0, 1.0)
     signed = np.linalg.norm(ras - (start + t[..., None] * axis), axis=-1) - radius
@@ -273,6 +304,8 @@ def _paint_capsule(volume, start, end, radius, hu):
 def _paint_sphere(volume, centre, radius, defect, outward):
     pad = 1.3 * radius + 2.0
     box, ras = _box_around(volume, centre - pad, centre + pad)
+    if box is None:
+        return
     offset = ras - centre
     if defect == "deformed":
         # Stretched by 20 % across the marker normal: the blurred, bloated look of Fig. 4a.

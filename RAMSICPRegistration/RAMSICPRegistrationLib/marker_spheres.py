@@ -33,7 +33,10 @@ COVERAGE_LIMIT = 0.85
 
 @dataclass(frozen=True)
 class MarkerSphere:
-    """One fitted sphere: centre (3,) RAS mm, radius and RMS residual (mm), surface coverage (0..1), status."""
+    """One fitted sphere: centre (3,) RAS mm, radius and RMS residual (mm), surface coverage (0..1), status.
+
+    ``label`` is its connected component in the BoneSegmentation's labels.
+    """
 
     centre: np.ndarray
     radius_mm: float
@@ -41,6 +44,7 @@ class MarkerSphere:
     coverage: float
     status: str
     surface_points: int
+    label: int
 
     def to_dict(self):
         return {
@@ -87,10 +91,10 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
             continue
         spheres.append(_fit_candidate(volume, segmentation, label, region, radius))
     warnings = []
-    for number, sphere in enumerate(spheres):
+    for sphere in spheres:
         if sphere.status != "ok":
             warnings.append(
-                f"sphere {number} at ({', '.join(f'{v:.1f}' for v in sphere.centre)}) is {sphere.status}: "
+                f"the sphere at ({', '.join(f'{v:.1f}' for v in sphere.centre)}) mm is {sphere.status}: "
                 f"radius {sphere.radius_mm:.2f} mm, residual {sphere.residual_mm:.2f} mm, "
                 f"{100 * sphere.coverage:.0f} % of its surface seen; check it in the CT and move its "
                 "centre by hand, or leave it out of the coarse registration"
@@ -192,6 +196,7 @@ def _fit_candidate(volume, segmentation, label, region, radius):
         coverage=coverage,
         status=status,
         surface_points=int(keep.sum()),
+        label=int(label),
     )
 
 

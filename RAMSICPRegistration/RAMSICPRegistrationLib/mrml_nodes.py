@@ -1,0 +1,116 @@
+"""The image side's results as MRML nodes, in a scene passed in (real MRML: Slicer, or ``slicer-core``).
+
+* the segmentation as a ``vtkMRMLSegmentationNode`` (one segment for the bone, one per marker sphere);
+* the IPC as a ``vtkMRMLModelNode``;
+* the marker centres as a ``vtkMRMLMarkupsFiducialNode`` with 11.5 mm sphere glyphs, which the surgeon can drag
+  (the paper's virtual fiducials);
+* a CTVolume as a scalar (or labelmap) volume node.
+
+Nothing here reaches for ``slicer.mrmlScene``: every function takes the scene it works on.
+"""
+
+import numpy as np
+
+from .package_data import MARKER_DIAMETER_MM
+
+
+def volume_node(scene, volume, name, labelmap=False):
+    """Add a ``vtkMRMLScalarVolumeNode`` (or ``vtkMRMLLabelMapVolumeNode``) holding a CTVolume's voxels and geometry."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+
+    node = scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode" if labelmap else "vtkMRMLScalarVolumeNode", name)
+    image = vtkImageData()
+    image.SetDimensions(*volume.voxels.shape)
+    image.GetPointData().SetScalars(
+        numpy_to_vtk(np.ascontiguousarray(volume.voxels.transpose(2, 1, 0)).ravel(), deep=True)
+    )
+    node.SetAndObserveImageData(image)
+    node.SetIJKToRASMatrix(_vtk_matrix(volume.ijk_to_ras))
+    return node
+
+
+def segmentation_node(scene, volume, segmentation, spheres_labels=(), name="Bone segmentation"):
+    """Add a ``vtkMRMLSegmentationNode`` with a 'bone' segment and a 'marker N' segment per sphere label.
+
+    Args:
+        scene: the vtkMRMLScene to add to.
+        volume: the segmented CTVolume (its geometry).
+        segmentation: BoneSegmentation.
+        spheres_labels: component labels of the marker spheres, in marker order.
+    """
+    import slicer
+
+    labels = np.zeros(segmentation.labels.shape, dtype=np.uint8)
+    labels[segmentation.bone_mask] = 1
+    for number, label in enumerate(spheres_labels):
+        labels[segmentation.labels == label] = number + 2
+    labelmap = volume_node(scene, type(volume)(voxels=labels, ijk_to_ras=volume.ijk_to_ras), name + " labels", True)
+    node = scene.AddNewNodeByClass("vtkMRMLSegmentationNode", name)
+    if not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(labelmap, node):
+        scene.RemoveNode(labelmap)
+        raise RuntimeError("Slicer could not import the bone labelmap into a segmentation node")
+    scene.RemoveNode(labelmap)
+    names = ["bone"] + [f"marker {number + 1}" for number in range(len(spheres_labels))]
+    segments = node.GetSegmentation()
+    for index, segment_name in enumerate(names[: segments.GetNumberOfSegments()]):
+        segments.GetNthSegment(index).SetName(segment_name)
+    return node
+
+
+def model_node(scene, points, triangles=None, name="IPC"):
+    """Add a ``vtkMRMLModelNode`` of the IPC: RAS points (M, 3), and triangles (K, 3) or none (a point cloud)."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+
+    vtk_points = vtkPoints()
+    vtk_points.SetData(numpy_to_vtk(np.ascontiguousarray(points, dtype=np.float64), deep=True))
+    mesh = vtkPolyData()
+    mesh.SetPoints(vtk_points)
+    cells = vtkCellArray()
+    if triangles is None or len(triangles) == 0:
+        offsets, connectivity = np.arange(len(points) + 1), np.arange(len(points))
+    else:
+        offsets, connectivity = np.arange(0, 3 * len(triangles) + 1, 3), np.asarray(triangles).ravel()
+    cells.SetData(
+        numpy_to_vtkIdTypeArray(offsets.astype(np.int64), deep=True),
+        numpy_to_vtkIdTypeArray(np.ascontiguousarray(connectivity, dtype=np.int64), deep=True),
+    )
+    if triangles is None or len(triangles) == 0:
+        mesh.SetVerts(cells)
+    else:
+        mesh.SetPolys(cells)
+    node = scene.AddNewNodeByClass("vtkMRMLModelNode", name)
+    node.SetAndObservePolyData(mesh)
+    node.CreateDefaultDisplayNodes()
+    return node
+
+
+def fiducial_node(scene, centres, labels=None, name="Marker centres (image)"):
+    """Add a ``vtkMRMLMarkupsFiducialNode`` of marker centres (K, 3) RAS, drawn as 11.5 mm spheres."""
+    node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", name)
+    node.CreateDefaultDisplayNodes()
+    display = node.GetDisplayNode()
+    display.SetGlyphTypeFromString("Sphere3D")
+    display.SetUseGlyphScale(False)
+    display.SetGlyphSize(MARKER_DIAMETER_MM)
+    labels = labels or [f"M{number + 1}" for number in range(len(centres))]
+    for centre, label in zip(np.asarray(centres, dtype=np.float64), labels):
+        node.AddControlPoint(centre.tolist(), label)
+    return node
+
+
+def fiducial_positions(node):
+    """Control-point positions (K, 3) RAS of a markups node, e.g. after the surgeon moved them."""
+    return np.array([node.GetNthControlPointPosition(i) for i in range(node.GetNumberOfControlPoints())]).reshape(-1, 3)
+
+
+def _vtk_matrix(array):
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    matrix = vtkMatrix4x4()
+    for row in range(4):
+        for column in range(4):
+            matrix.SetElement(row, column, float(array[row][column]))
+    return matrix
