@@ -128,3 +128,58 @@ def test_slicer_volume_node_gives_the_same_volume():
     np.testing.assert_allclose(volume.ijk_to_ras, oblique, atol=1e-12)
     with pytest.raises(TypeError, match="expected a vtkMRMLScalarVolumeNode"):
         load_volume(scene.AddNewNodeByClass("vtkMRMLLinearTransformNode"))
+
+
+def _write_dicom_series(folder, voxels, ijk_to_lps, series_uid="1.2.3.4"):
+    """A minimal CT series (one file a slice), as a scanner writes it: LPS positions, rescale to HU."""
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+
+    folder.mkdir(exist_ok=True)
+    spacing = np.linalg.norm(ijk_to_lps[:3, :3], axis=0)
+    for k in range(voxels.shape[2]):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID = CTImageStorage
+        meta.MediaStorageSOPInstanceUID = generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        dataset = Dataset()
+        dataset.file_meta = meta
+        dataset.SOPClassUID, dataset.SOPInstanceUID = CTImageStorage, meta.MediaStorageSOPInstanceUID
+        dataset.SeriesInstanceUID = series_uid
+        dataset.Modality = "CT"
+        dataset.ImageOrientationPatient = [
+            float(v) for v in np.concatenate((ijk_to_lps[:3, 0] / spacing[0], ijk_to_lps[:3, 1] / spacing[1]))
+        ]
+        dataset.ImagePositionPatient = [float(v) for v in ijk_to_lps[:3, 3] + k * ijk_to_lps[:3, 2]]
+        dataset.PixelSpacing = [float(spacing[1]), float(spacing[0])]  # row spacing, column spacing
+        dataset.Rows, dataset.Columns = voxels.shape[1], voxels.shape[0]
+        dataset.SamplesPerPixel, dataset.PhotometricInterpretation = 1, "MONOCHROME2"
+        dataset.BitsAllocated, dataset.BitsStored, dataset.HighBit, dataset.PixelRepresentation = 16, 16, 15, 0
+        dataset.RescaleSlope, dataset.RescaleIntercept = 1, -1024
+        dataset.PixelData = (voxels[:, :, k].T.astype(np.int32) + 1024).astype(np.uint16).tobytes()
+        # Files named against the slice order: the reader must sort by position, not by name.
+        name = f"{series_uid}-slice{voxels.shape[2] - k:03d}.dcm"
+        dataset.save_as(str(folder / name), enforce_file_format=True)
+
+
+def test_dicom_series_folder_is_read_with_its_oblique_geometry(tmp_path):
+    ijk_to_lps = np.eye(4)
+    ijk_to_lps[:3, :3] = rotation_about_axis((0.3, 0.2, 1.0), np.radians(15.0)) * np.array([0.5, 0.5, 0.625])
+    ijk_to_lps[:3, 3] = (-60.0, 25.0, 100.0)
+    hu = VOXELS.astype(np.int16) * 10 - 500
+    _write_dicom_series(tmp_path / "series", hu, ijk_to_lps)
+    volume = load_volume(tmp_path / "series")
+    np.testing.assert_array_equal(volume.voxels, hu)
+    np.testing.assert_allclose(volume.ijk_to_ras, np.diag([-1.0, -1.0, 1.0, 1.0]) @ ijk_to_lps, atol=1e-9)
+
+
+def test_dicom_folders_that_are_not_one_series(tmp_path):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "notes.txt").write_text("no images here")
+    with pytest.raises(PointFileError, match="no DICOM image"):
+        load_volume(tmp_path / "empty")
+    ijk_to_lps = np.diag([0.5, 0.5, 1.0, 1.0])
+    _write_dicom_series(tmp_path / "mixed", VOXELS[:, :, :2], ijk_to_lps, series_uid="1.1")
+    _write_dicom_series(tmp_path / "mixed", VOXELS[:, :, :3], ijk_to_lps, series_uid="1.2")
+    with pytest.raises(PointFileError, match="holds 2 DICOM series"):
+        load_volume(tmp_path / "mixed")

@@ -66,7 +66,8 @@ def check_volume(voxels, ijk_to_ras, name="CT volume"):
 
 
 def load_volume(source):
-    """Load a CT volume from a ``.nrrd``/``.nhdr``/``.nii``/``.nii.gz`` file or a Slicer scalar volume node.
+    """Load a CT volume from a ``.nrrd``/``.nhdr``/``.nii``/``.nii.gz`` file, a DICOM series folder, or a Slicer
+    scalar volume node.
 
     Raises:
         PointFileError: a file that is missing, of unknown type or unreadable (names the file and the problem).
@@ -75,6 +76,9 @@ def load_volume(source):
     if hasattr(source, "IsA"):  # a VTK object: it must be a scalar volume node
         return volume_from_node(source)
     path = Path(source)
+    if path.is_dir():
+        voxels, ijk_to_ras = _read_dicom_series(path)
+        return check_volume(voxels, ijk_to_ras, name=str(path))
     if not path.is_file():
         raise PointFileError(path, "no such file")
     name = path.name.lower()
@@ -161,3 +165,53 @@ def _read_nifti(path):
     if voxels.ndim == 4 and voxels.shape[3] == 1:
         voxels = voxels[..., 0]
     return voxels, np.asarray(image.affine, dtype=np.float64)  # NIfTI's affine maps voxels to RAS+
+
+
+def _read_dicom_series(folder):
+    """Read the CT series in a folder with pydicom: slices sorted along their normal, HU via the rescale tags."""
+    import pydicom
+    from pydicom.errors import InvalidDicomError
+
+    headers = []
+    for path in sorted(p for p in folder.iterdir() if p.is_file()):
+        try:
+            header = pydicom.dcmread(str(path), stop_before_pixels=True)
+        except (InvalidDicomError, OSError):
+            continue  # not a DICOM file: DICOMDIR companions, notes
+        if "ImagePositionPatient" in header and "ImageOrientationPatient" in header:
+            headers.append((path, header))
+    if not headers:
+        raise PointFileError(folder, "no DICOM image with a position and orientation in this folder")
+    series = {}
+    for path, header in headers:
+        series.setdefault(str(header.get("SeriesInstanceUID", "")), []).append((path, header))
+    if len(series) > 1:
+        sizes = ", ".join(f"{uid or '(none)'}: {len(items)} slices" for uid, items in series.items())
+        raise PointFileError(folder, f"holds {len(series)} DICOM series ({sizes}); put one series in a folder")
+    slices = next(iter(series.values()))
+    orientation = np.array(slices[0][1].ImageOrientationPatient, dtype=np.float64)
+    along_row, along_column = orientation[:3], orientation[3:]
+    normal = np.cross(along_row, along_column)
+    slices.sort(key=lambda item: float(np.dot(np.array(item[1].ImagePositionPatient, dtype=np.float64), normal)))
+    positions = np.array([item[1].ImagePositionPatient for item in slices], dtype=np.float64)
+    if len(slices) < 2:
+        raise PointFileError(folder, "a single DICOM slice is not a volume; export the whole series")
+    steps = np.diff(positions, axis=0)
+    if np.linalg.norm(steps, axis=1).min() < 1e-6:
+        raise PointFileError(folder, "two slices share one position; the series holds duplicates")
+    row_spacing, column_spacing = (float(v) for v in slices[0][1].PixelSpacing)
+    images = []
+    for path, _ in slices:
+        dataset = pydicom.dcmread(str(path))
+        slope = float(getattr(dataset, "RescaleSlope", 1.0))
+        intercept = float(getattr(dataset, "RescaleIntercept", 0.0))
+        images.append(dataset.pixel_array.T.astype(np.float32) * slope + intercept)  # (columns, rows) = (i, j)
+    ijk_to_lps = np.eye(4)
+    ijk_to_lps[:3, 0] = along_row * column_spacing
+    ijk_to_lps[:3, 1] = along_column * row_spacing
+    ijk_to_lps[:3, 2] = (positions[-1] - positions[0]) / (len(slices) - 1)
+    ijk_to_lps[:3, 3] = positions[0]
+    voxels = np.stack(images, axis=-1)
+    if np.all(voxels == np.round(voxels)) and np.abs(voxels).max() < 32768:
+        voxels = voxels.astype(np.int16)
+    return voxels, _LPS_TO_RAS @ ijk_to_lps
