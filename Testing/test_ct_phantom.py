@@ -73,6 +73,8 @@ def test_cli_ipc_on_the_phantom(tibia_phantom, tibia_patient, tmp_path, capsys):
         str(tmp_path / "markers.mrk.json"),
         "--json",
         str(tmp_path / "ipc.json"),
+        "--labelmap",
+        str(tmp_path / "labels.nrrd"),
     ]
     assert main(arguments) == 0
     markers = read_points(tmp_path / "markers.mrk.json")
@@ -81,6 +83,12 @@ def test_cli_ipc_on_the_phantom(tibia_phantom, tibia_patient, tmp_path, capsys):
     document = json.loads((tmp_path / "ipc.json").read_text())
     assert document["ipc_points"] == len(read_surface_points(tmp_path / "ipc.vtp"))
     assert set(document["seconds"]) == {"load", "segmentation", "surface", "marker_spheres"}
+    labels = load_volume(tmp_path / "labels.nrrd")
+    np.testing.assert_allclose(labels.ijk_to_ras, volume.ijk_to_ras)
+    assert set(np.unique(labels.voxels)) == {0, 1, 2, 3, 4, 5}
+    for number, centre in enumerate(truth.marker_centres):  # sphere n+2 sits at marker n's true centre
+        i, j, k = np.round(volume.ras_to_ijk_points(centre[None])[0]).astype(int)
+        assert labels.voxels[i, j, k] == number + 2
     assert main(arguments[:4] + ["--spacing", "1.0"]) == 0
     assert len(read_surface_points(tmp_path / "ipc.vtp")) < 0.5 * document["ipc_points"]
     capsys.readouterr()

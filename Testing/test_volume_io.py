@@ -159,7 +159,10 @@ def _write_dicom_series(folder, voxels, ijk_to_lps, series_uid="1.2.3.4"):
         dataset.PixelData = (voxels[:, :, k].T.astype(np.int32) + 1024).astype(np.uint16).tobytes()
         # Files named against the slice order: the reader must sort by position, not by name.
         name = f"{series_uid}-slice{voxels.shape[2] - k:03d}.dcm"
-        dataset.save_as(str(folder / name), enforce_file_format=True)
+        try:
+            dataset.save_as(str(folder / name), enforce_file_format=True)  # pydicom 3
+        except TypeError:
+            dataset.save_as(str(folder / name), write_like_original=False)  # pydicom 2 (Python 3.9)
 
 
 def test_dicom_series_folder_is_read_with_its_oblique_geometry(tmp_path):

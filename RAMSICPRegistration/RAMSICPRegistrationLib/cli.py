@@ -21,7 +21,7 @@ from .surface_files import read_surface_mesh, read_surface_points, write_surface
 from .surface_index import SurfaceIndex
 from .sweep import make_scales
 from .virtual_patient import VirtualPatient
-from .volume_io import load_volume
+from .volume_io import CTVolume, load_volume, save_nrrd
 
 EXIT_BAD_INPUT = 2
 
@@ -108,7 +108,7 @@ def _parser():
     demo.set_defaults(run=_run_demo)
 
     ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
-    ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii or .nii.gz")
+    ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder")
     ipc.add_argument(
         "--threshold",
         default=str(DEFAULT_THRESHOLD_HU),
@@ -122,6 +122,7 @@ def _parser():
     )
     ipc.add_argument("--out", type=Path, required=True, help="IPC file: .vtp .vtk .ply .stl .obj or a point file")
     ipc.add_argument("--markers", type=Path, help="write the marker-sphere centres (.mrk.json, .fcsv, ...)")
+    ipc.add_argument("--labelmap", type=Path, help="write the segmentation as a .nrrd labelmap (1 bone, 2-5 spheres)")
     ipc.add_argument(
         "--tool",
         default=DEFAULT_REFERENCE_TOOL,
@@ -336,6 +337,9 @@ def _run_ipc(arguments):
         write_points(arguments.out, points)
     else:
         write_surface(arguments.out, points, triangles)
+    if arguments.labelmap is not None:
+        labels = segmentation.labelmap([sphere.label for sphere in spheres])
+        save_nrrd(arguments.labelmap, CTVolume(voxels=labels, ijk_to_ras=volume.ijk_to_ras))
     if arguments.markers is not None and spheres:
         write_points(
             arguments.markers,

@@ -49,6 +49,14 @@ class BoneSegmentation:
     def bone_mask(self):
         return self.labels == self.bone_label
 
+    def labelmap(self, sphere_labels=()):
+        """(I, J, K) uint8 labelmap: 1 for the bone, 2, 3, ... for the marker spheres given by component label."""
+        labelmap = np.zeros(self.labels.shape, dtype=np.uint8)
+        labelmap[self.bone_mask] = 1
+        for number, label in enumerate(sphere_labels):
+            labelmap[self.labels == label] = number + 2
+        return labelmap
+
 
 def otsu_threshold(values, bins=512):
     """Otsu's threshold of a 1-D array of HU values (the split maximising between-class variance)."""

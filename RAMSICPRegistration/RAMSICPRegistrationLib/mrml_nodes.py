@@ -41,11 +41,8 @@ def segmentation_node(scene, volume, segmentation, spheres_labels=(), name="Bone
     """
     import slicer
 
-    labels = np.zeros(segmentation.labels.shape, dtype=np.uint8)
-    labels[segmentation.bone_mask] = 1
-    for number, label in enumerate(spheres_labels):
-        labels[segmentation.labels == label] = number + 2
-    labelmap = volume_node(scene, type(volume)(voxels=labels, ijk_to_ras=volume.ijk_to_ras), name + " labels", True)
+    labels = type(volume)(voxels=segmentation.labelmap(spheres_labels), ijk_to_ras=volume.ijk_to_ras)
+    labelmap = volume_node(scene, labels, name + " labels", labelmap=True)
     node = scene.AddNewNodeByClass("vtkMRMLSegmentationNode", name)
     if not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(labelmap, node):
         scene.RemoveNode(labelmap)

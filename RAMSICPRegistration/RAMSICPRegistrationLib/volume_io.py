@@ -118,7 +118,7 @@ def volume_from_node(node):
 
 
 def save_nrrd(path, volume):
-    """Write a CTVolume as NRRD in LPS (as Slicer writes), int16 when the values are whole HU, gzip-compressed."""
+    """Write a CTVolume as NRRD in LPS (as Slicer writes), gzip-compressed; float HU become int16, labels stay."""
     import nrrd
 
     ijk_to_lps = _LPS_TO_RAS @ volume.ijk_to_ras
