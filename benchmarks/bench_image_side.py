@@ -22,8 +22,7 @@ from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_mark
 from RAMSICPRegistrationLib.surface_files import read_surface_mesh
 from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
 from RAMSICPRegistrationLib.volume_io import CTVolume
-from vtkmodules.util.numpy_support import numpy_to_vtk
-from vtkmodules.vtkCommonDataModel import vtkImageData
+from RAMSICPRegistrationLib.vtk_arrays import image_data
 from vtkmodules.vtkFiltersCore import vtkMarchingCubes
 
 TARGET_SECONDS = 10.0
@@ -58,11 +57,8 @@ def image_side(volume):
 
 
 def uncropped_marching_cubes(smoothed, level):
-    data = vtkImageData()
-    data.SetDimensions(*smoothed.shape)
-    data.GetPointData().SetScalars(numpy_to_vtk(np.ascontiguousarray(smoothed.transpose(2, 1, 0)).ravel(), deep=True))
     cubes = vtkMarchingCubes()
-    cubes.SetInputData(data)
+    cubes.SetInputData(image_data(smoothed))
     cubes.SetValue(0, level)
     cubes.ComputeNormalsOff()
     cubes.Update()

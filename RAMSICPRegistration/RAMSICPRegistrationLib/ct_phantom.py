@@ -26,6 +26,7 @@ from .package_data import MARKER_DIAMETER_MM
 from .transforms import apply_transform
 from .virtual_patient import sample_surface
 from .volume_io import CTVolume
+from .vtk_arrays import poly_data
 
 logger = logging.getLogger(__name__)
 
@@ -190,9 +191,7 @@ def _fraction_inside(signed_distance_mm, ramp_mm):
 
 def _paint_bone(volume, vertices, triangles, top, rng):
     """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
-    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray, vtk_to_numpy
-    from vtkmodules.vtkCommonCore import vtkPoints
-    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+    from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
 
     spacing = volume.spacing
@@ -205,18 +204,8 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     box_shape = high - low + 1
 
     # Inside/outside of the closed mesh on the grid, scan-line by scan-line (VTK stencil), in index space.
-    points = vtkPoints()
-    points.SetData(numpy_to_vtk(np.ascontiguousarray(vertices_ijk - low), deep=True))
-    mesh = vtkPolyData()
-    mesh.SetPoints(points)
-    cells = vtkCellArray()
-    cells.SetData(
-        numpy_to_vtkIdTypeArray(np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64), deep=True),
-        numpy_to_vtkIdTypeArray(np.ascontiguousarray(triangles.ravel(), dtype=np.int64), deep=True),
-    )
-    mesh.SetPolys(cells)
     stencil = vtkPolyDataToImageStencil()
-    stencil.SetInputData(mesh)
+    stencil.SetInputData(poly_data(vertices_ijk - low, triangles))
     stencil.SetOutputOrigin(0.0, 0.0, 0.0)
     stencil.SetOutputSpacing(1.0, 1.0, 1.0)
     stencil.SetOutputWholeExtent(0, box_shape[0] - 1, 0, box_shape[1] - 1, 0, box_shape[2] - 1)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .vtk_arrays import image_data
+
 logger = logging.getLogger(__name__)
 
 #: Default bone threshold (HU): above fat, marrow and soft tissue, below cancellous bone.
@@ -187,15 +189,11 @@ def _surface_level(image, mask, threshold, level, spacing):
 
 def iso_surface(image, level):
     """Iso-surface of a 3-D array at ``level`` (VTK flying edges): vertices (M, 3) in index units, triangles (K, 3)."""
-    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
-    from vtkmodules.vtkCommonDataModel import vtkImageData
+    from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkFiltersCore import vtkFlyingEdges3D
 
-    data = vtkImageData()
-    data.SetDimensions(*image.shape)
-    data.GetPointData().SetScalars(numpy_to_vtk(np.ascontiguousarray(image.transpose(2, 1, 0)).ravel(), deep=True))
     edges = vtkFlyingEdges3D()
-    edges.SetInputData(data)
+    edges.SetInputData(image_data(image))
     edges.SetValue(0, float(level))
     edges.ComputeNormalsOff()
     edges.ComputeGradientsOff()

@@ -12,19 +12,13 @@ Nothing here reaches for ``slicer.mrmlScene``: every function takes the scene it
 import numpy as np
 
 from .package_data import MARKER_DIAMETER_MM
+from .vtk_arrays import image_data, poly_data
 
 
 def volume_node(scene, volume, name, labelmap=False):
     """Add a ``vtkMRMLScalarVolumeNode`` (or ``vtkMRMLLabelMapVolumeNode``) holding a CTVolume's voxels and geometry."""
-    from vtkmodules.util.numpy_support import numpy_to_vtk
-    from vtkmodules.vtkCommonDataModel import vtkImageData
-
     node = scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode" if labelmap else "vtkMRMLScalarVolumeNode", name)
-    image = vtkImageData()
-    image.SetDimensions(*volume.voxels.shape)
-    image.GetPointData().SetScalars(
-        numpy_to_vtk(np.ascontiguousarray(volume.voxels.transpose(2, 1, 0)).ravel(), deep=True)
-    )
+    image = image_data(volume.voxels)
     node.SetAndObserveImageData(image)
     node.SetIJKToRASMatrix(_vtk_matrix(volume.ijk_to_ras))
     return node
@@ -57,29 +51,8 @@ def segmentation_node(scene, volume, segmentation, spheres_labels=(), name="Bone
 
 def model_node(scene, points, triangles=None, name="IPC"):
     """Add a ``vtkMRMLModelNode`` of the IPC: RAS points (M, 3), and triangles (K, 3) or none (a point cloud)."""
-    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
-    from vtkmodules.vtkCommonCore import vtkPoints
-    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
-
-    vtk_points = vtkPoints()
-    vtk_points.SetData(numpy_to_vtk(np.ascontiguousarray(points, dtype=np.float64), deep=True))
-    mesh = vtkPolyData()
-    mesh.SetPoints(vtk_points)
-    cells = vtkCellArray()
-    if triangles is None or len(triangles) == 0:
-        offsets, connectivity = np.arange(len(points) + 1), np.arange(len(points))
-    else:
-        offsets, connectivity = np.arange(0, 3 * len(triangles) + 1, 3), np.asarray(triangles).ravel()
-    cells.SetData(
-        numpy_to_vtkIdTypeArray(offsets.astype(np.int64), deep=True),
-        numpy_to_vtkIdTypeArray(np.ascontiguousarray(connectivity, dtype=np.int64), deep=True),
-    )
-    if triangles is None or len(triangles) == 0:
-        mesh.SetVerts(cells)
-    else:
-        mesh.SetPolys(cells)
     node = scene.AddNewNodeByClass("vtkMRMLModelNode", name)
-    node.SetAndObservePolyData(mesh)
+    node.SetAndObservePolyData(poly_data(points, triangles))
     node.CreateDefaultDisplayNodes()
     return node
 

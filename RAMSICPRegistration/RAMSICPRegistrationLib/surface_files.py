@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .point_files import POINT_SUFFIXES, PointFileError, _check_space, _suffix, read_points, to_ras
+from .vtk_arrays import poly_data
 
 SURFACE_SUFFIXES = (".vtk", ".vtp", ".stl", ".ply", ".obj")
 
@@ -72,32 +73,13 @@ def write_surface(path, vertices, triangles=None):
 
     Without triangles every vertex is written as a vertex cell, so the file is a point cloud.
     """
-    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
-    from vtkmodules.vtkCommonCore import vtkPoints, vtkStringArray
-    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+    from vtkmodules.vtkCommonCore import vtkStringArray
 
     path = Path(path)
     suffix = _suffix(path)
     if suffix not in SURFACE_SUFFIXES:
         raise PointFileError(path, f"unknown surface type; use one of {', '.join(SURFACE_SUFFIXES)}")
-    lps = np.ascontiguousarray(to_ras(np.asarray(vertices, dtype=np.float64), "LPS"))
-    points = vtkPoints()
-    points.SetData(numpy_to_vtk(lps, deep=True))
-    mesh = vtkPolyData()
-    mesh.SetPoints(points)
-    cells = vtkCellArray()
-    if triangles is None or len(triangles) == 0:
-        offsets = np.arange(len(lps) + 1, dtype=np.int64)
-        connectivity = np.arange(len(lps), dtype=np.int64)
-        cells.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True), numpy_to_vtkIdTypeArray(connectivity, deep=True))
-        mesh.SetVerts(cells)
-    else:
-        triangles = np.asarray(triangles, dtype=np.int64)
-        offsets = np.arange(0, 3 * len(triangles) + 1, 3, dtype=np.int64)
-        cells.SetData(
-            numpy_to_vtkIdTypeArray(offsets, deep=True), numpy_to_vtkIdTypeArray(triangles.ravel().copy(), deep=True)
-        )
-        mesh.SetPolys(cells)
+    mesh = poly_data(to_ras(np.asarray(vertices, dtype=np.float64), "LPS"), triangles)
     writer = _writer(suffix)
     if suffix == ".vtp":
         tag = vtkStringArray()

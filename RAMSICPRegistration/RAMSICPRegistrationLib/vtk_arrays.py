@@ -1,0 +1,41 @@
+"""numpy arrays to VTK data objects, in one place: image data from (I, J, K) arrays, poly data from points."""
+
+import numpy as np
+
+
+def image_data(array):
+    """``vtkImageData`` of an (I, J, K) array in index space (origin 0, spacing 1); VTK runs i fastest."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+
+    image = vtkImageData()
+    image.SetDimensions(*array.shape)
+    image.GetPointData().SetScalars(numpy_to_vtk(np.ascontiguousarray(array.transpose(2, 1, 0)).ravel(), deep=True))
+    return image
+
+
+def poly_data(points, triangles=None):
+    """``vtkPolyData`` of (M, 3) points with (K, 3) triangles, or with one vertex cell per point (a cloud)."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+
+    vtk_points = vtkPoints()
+    vtk_points.SetData(numpy_to_vtk(np.ascontiguousarray(points, dtype=np.float64), deep=True))
+    mesh = vtkPolyData()
+    mesh.SetPoints(vtk_points)
+    cloud = triangles is None or len(triangles) == 0
+    if cloud:
+        offsets, connectivity = np.arange(len(points) + 1), np.arange(len(points))
+    else:
+        offsets, connectivity = np.arange(0, 3 * len(triangles) + 1, 3), np.asarray(triangles).ravel()
+    cells = vtkCellArray()
+    cells.SetData(
+        numpy_to_vtkIdTypeArray(np.ascontiguousarray(offsets, dtype=np.int64), deep=True),
+        numpy_to_vtkIdTypeArray(np.ascontiguousarray(connectivity, dtype=np.int64), deep=True),
+    )
+    if cloud:
+        mesh.SetVerts(cells)
+    else:
+        mesh.SetPolys(cells)
+    return mesh
