@@ -1,6 +1,6 @@
 """Real data shipped inside the package (installed with it, so the demo runs after a plain pip install).
 
-* Visible Human Female tibiae (University of Denver, CC BY 4.0; see ``data/licenses``).
+* Visible Human Female tibiae and right fibula (University of Denver, CC BY 4.0; see ``data/licenses``).
 * NDI passive tool marker geometries typed from PLUS Toolkit's ``.rom`` files (BSD-3-Clause).
 """
 
@@ -15,6 +15,7 @@ DATA_DIR = Path(__file__).resolve().parent / "data"
 BONES = {
     "right-tibia": {"file": "VHF_Right_Bone_Tibia_smooth.stl", "medial": (-1.0, 0.0, 0.0)},
     "left-tibia": {"file": "VHF_Left_Bone_Tibia_smooth.stl", "medial": (1.0, 0.0, 0.0)},
+    "right-fibula": {"file": "VHF_Right_Bone_Fibula_smooth.stl", "medial": (-1.0, 0.0, 0.0)},
 }
 
 #: NDI reference body used by the demo: passive 4-marker tool 8700339.
@@ -25,7 +26,7 @@ MARKER_DIAMETER_MM = 11.5
 
 
 def bone_mesh_path(name):
-    """Path of a shipped bone mesh (``right-tibia`` or ``left-tibia``); the file's frame is RAS, in mm."""
+    """Path of a shipped bone mesh (a key of ``BONES``); the file's frame is RAS, in mm."""
     if name not in BONES:
         raise ValueError(f"bone {name!r}: shipped bones are {', '.join(BONES)}")
     return DATA_DIR / BONES[name]["file"]
