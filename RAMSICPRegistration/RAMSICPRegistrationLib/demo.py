@@ -19,9 +19,10 @@ from .ct_phantom import make_ct_phantom, signed_distance_to_mesh
 from .ct_segmentation import bone_surface, segment_bone
 from .marker_spheres import detect_marker_spheres, order_to_tool
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
-from .registration import DEFAULT_SCALE, register, select_scale
+from .registration import DEFAULT_SCALE
 from .surface_files import read_surface_mesh
 from .surface_index import SurfaceIndex
+from .trials import evaluate_trial
 from .virtual_patient import VirtualPatient
 
 logger = logging.getLogger(__name__)
@@ -29,14 +30,13 @@ logger = logging.getLogger(__name__)
 #: The paper's Fig. 8: mean +- sd TRE (mm) over 15 subjects.
 PAPER_TRE_MM = {"CR": (1.33, 0.27), "CR-ICP": (0.89, 0.14), "CR-RAMSICP": (0.56, 0.08)}
 PROBE_NOISE_MM = 0.25
-POLICIES = ("targets", "rms-plateau", "fixed")
-METHOD_LABELS = (
-    "CR",
-    "CR-ICP",
-    "CR-RAMSICP (L by min TRE, paper)",
-    "CR-RAMSICP (rms-plateau, target-free)",
-    f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})",
-)
+#: The RAMSICP rows of the table, by the policy that picks L.
+POLICY_LABELS = {
+    "targets": "CR-RAMSICP (L by min TRE, paper)",
+    "rms-plateau": "CR-RAMSICP (rms-plateau, target-free)",
+    "fixed": f"CR-RAMSICP (fixed L = {DEFAULT_SCALE:g})",
+}
+METHOD_LABELS = ("CR", "CR-ICP", *POLICY_LABELS.values())
 #: Which demo rows the paper reports, and under which name.
 PAPER_ROWS = {"CR": "CR", "CR-ICP": "CR-ICP", "CR-RAMSICP (L by min TRE, paper)": "CR-RAMSICP"}
 MARKER_MODES = {
@@ -148,7 +148,7 @@ def run_demo(
         modes = ("manual",)
 
     tre = {mode: {label: np.empty(trials) for label in METHOD_LABELS} for mode in modes}
-    scales = {mode: {policy: np.empty(trials) for policy in POLICIES} for mode in modes}
+    scales = {mode: {policy: np.empty(trials) for policy in POLICY_LABELS} for mode in modes}
     rng = np.random.default_rng(seed + 1)
     clock = time.perf_counter()
     index = SurfaceIndex(side.ipc)
@@ -156,24 +156,12 @@ def run_demo(
     for trial in range(trials):
         data = patient.simulate_trial(rng, marker_fle, PROBE_NOISE_MM)
         for mode in modes:
-            markers_image = data.markers_image if mode == "manual" else side.automatic_markers
-            common = dict(
-                ipc=index,
-                ppc=data.ppc,
-                markers_image=markers_image,
-                markers_patient=data.markers_patient,
-                targets_image=data.targets_image,
-                targets_patient=data.targets_patient,
-            )
             start = time.perf_counter()
-            for method, label in (("cr", "CR"), ("cr-icp", "CR-ICP")):
-                tre[mode][label][trial] = register(method=method, **common).tre_mm
-            swept = register(method="cr-ramsicp", sweep=True, policy="targets", **common)
+            result = evaluate_trial(index, data, None if mode == "manual" else side.automatic_markers)
             seconds["registration"] += time.perf_counter() - start
-            for policy, label in zip(POLICIES, METHOD_LABELS[2:]):
-                entry = swept.sweep[select_scale(swept.sweep, policy)]
-                tre[mode][label][trial] = entry.tre_mm
-                scales[mode][policy][trial] = entry.scale
+            tre[mode]["CR"][trial], tre[mode]["CR-ICP"][trial] = result.cr_mm, result.icp_mm
+            for policy, label in POLICY_LABELS.items():
+                scales[mode][policy][trial], tre[mode][label][trial] = result.chosen[policy]
         report("registrations", trial + 1, trials)
     seconds["per_trial_and_mode"] = seconds["registration"] / (trials * len(modes))
     return DemoReport(

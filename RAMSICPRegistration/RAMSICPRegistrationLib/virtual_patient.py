@@ -58,6 +58,7 @@ class VirtualPatient:
         ipc_points=200_000,
         cut_below_top_mm=40.0,
         bracket_offset_mm=(75.0, 45.0),
+        turn_deg=20.0,
     ):
         """Build the virtual patient from a closed bone mesh (RAS mm, +z superior).
 
@@ -69,6 +70,7 @@ class VirtualPatient:
             ipc_points: IPC size; the paper's IPC has 194,568 points.
             cut_below_top_mm: height of the osteotomy cut below the top of the tibial plateau.
             bracket_offset_mm: (lateral, anterior) offset of the reference body from the shaft axis.
+            turn_deg: rotation of the reference body's marker plane about the bone's axis, from facing anterior.
         """
         rng = np.random.default_rng(seed)
         ipc, _ = sample_surface(vertices, triangles, ipc_points, rng)
@@ -79,7 +81,9 @@ class VirtualPatient:
         targets = _cut_end_points(ipc, cut_height, medial, anterior)
         sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, medial, anterior)
         shaft_centre = _section_centre(ipc, cut_height - 60.0)
-        reference_to_image = _reference_body_pose(markers_reference, shaft_centre, -medial, anterior, bracket_offset_mm)
+        reference_to_image = _reference_body_pose(
+            markers_reference, shaft_centre, -medial, anterior, bracket_offset_mm, turn_deg
+        )
         return cls(
             ipc=ipc,
             reference_to_image=reference_to_image,
@@ -197,13 +201,13 @@ def _medial_face_sub_areas(points, normals, cut_height, medial, anterior, radius
     return tuple(areas)
 
 
-def _reference_body_pose(markers, shaft_centre, lateral, anterior, offset_mm):
+def _reference_body_pose(markers, shaft_centre, lateral, anterior, offset_mm, turn_deg):
     """ReferenceToImage of a reference body on a bracket lateral-anterior of the shaft, facing anterior.
 
     The tool's marker plane normal (+x of NDI passive tools) faces anterior, towards the camera, turned
-    20 degrees about the bone's axis; its long axis (+z) runs along the bone.
+    ``turn_deg`` about the bone's axis; its long axis (+z) runs along the bone.
     """
-    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(20.0)) @ anterior
+    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(turn_deg)) @ anterior
     z_axis = np.array([0.0, 0.0, 1.0])
     rotation = np.column_stack((x_axis, np.cross(z_axis, x_axis), z_axis))
     centre = shaft_centre + offset_mm[0] * lateral + offset_mm[1] * anterior
