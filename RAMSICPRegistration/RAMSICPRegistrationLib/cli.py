@@ -13,6 +13,8 @@ from . import __version__
 from .ct_phantom import make_ct_phantom, write_phantom
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, resample_points, segment_bone
 from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
+from .experiment_report import write_outputs
+from .experiments import EXPERIMENTS, run_experiments
 from .marker_spheres import detect_marker_spheres, order_to_tool
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
 from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
@@ -141,6 +143,17 @@ def _parser():
     )
     phantom.add_argument("--deformed", type=int, choices=range(4), metavar="N", help="make marker N (0-3) deformed")
     phantom.set_defaults(run=_run_phantom)
+
+    reproduce = commands.add_parser("reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms")
+    reproduce.add_argument("--experiment", choices=(*EXPERIMENTS, "all"), default="all")
+    reproduce.add_argument("--trials", type=int, help="repetitions per condition (default: the paper's)")
+    reproduce.add_argument("--subjects", type=int, default=15, help="virtual patients (default 15, as in Fig. 8)")
+    reproduce.add_argument("--seed", type=int, default=0)
+    reproduce.add_argument("--image-source", choices=("ct", "mesh"), default="ct")
+    reproduce.add_argument(
+        "--out", type=Path, default=Path("reproduction"), help="folder for report.md, results.json, PNGs"
+    )
+    reproduce.set_defaults(run=_run_reproduce)
     return parser
 
 
@@ -402,6 +415,27 @@ def _run_phantom(arguments):
     )
     for name, path in paths.items():
         print(f"  {name:<13} {path}")
+    return 0
+
+
+def _run_reproduce(arguments):
+    clock = time.perf_counter()
+    experiments = EXPERIMENTS if arguments.experiment == "all" else (arguments.experiment,)
+    results = run_experiments(
+        experiments,
+        trials=arguments.trials,
+        seed=arguments.seed,
+        subjects=arguments.subjects,
+        image_source=arguments.image_source,
+        progress=_ProgressBar(),
+    )
+    results["settings"]["seconds"] = time.perf_counter() - clock
+    paths = write_outputs(results, arguments.out)
+    print(
+        f"{len(experiments)} experiment(s) on {arguments.subjects} subject(s) in {results['settings']['seconds']:.0f} s"
+    )
+    for name, path in paths.items():
+        print(f"  {name:<8} {path}")
     return 0
 
 
