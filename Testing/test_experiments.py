@@ -4,10 +4,9 @@ import json
 
 import numpy as np
 import pytest
-from scipy import stats
-
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.experiments import FIG9_LEVELS_MM, run_experiments
+from scipy import stats
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +23,15 @@ def test_all_files_are_written(reproduction):
         assert (folder / name).stat().st_size > 1000
     assert set(results["experiments"]) == {"fig7", "fig8", "fig9", "fig10a", "fig10b"}
     report = (folder / "report.md").read_text()
-    for heading in ("## Error model", "## Fig. 7", "## Fig. 8", "## Fig. 9", "## Fig. 10a", "## Fig. 10b",
-                    "## Why our figures differ"):
+    for heading in (
+        "## Error model",
+        "## Fig. 7",
+        "## Fig. 8",
+        "## Fig. 9",
+        "## Fig. 10a",
+        "## Fig. 10b",
+        "## Why our figures differ",
+    ):
         assert heading in report
     assert "1.33 ± 0.27" in report and "0.25 mm RMS" in report
 
@@ -91,3 +97,18 @@ def test_fig8_on_ct_phantoms_uses_the_automatic_centres():
 def test_unknown_experiment_is_refused():
     with pytest.raises(ValueError, match="experiment\\(s\\) fig11: use fig7"):
         run_experiments(["fig11"], subjects=1)
+
+
+@pytest.mark.parametrize(
+    "curve, words",
+    [
+        ([1.0, 0.8, 0.7, 0.9, 1.1], "falls, then rises"),
+        ([1.0, 0.8, 0.7, 0.7, 0.7], "falls, then stays flat"),
+        ([0.7, 0.7, 0.8, 0.9, 1.0], "lowest at small L"),
+        ([0.7, 0.705, 0.7, 0.702, 0.7], "flat"),
+    ],
+)
+def test_fig7_curve_shapes_in_words(curve, words):
+    from RAMSICPRegistrationLib.experiment_report import _curve_shape
+
+    assert _curve_shape(np.array(curve)).startswith(words)
