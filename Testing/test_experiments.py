@@ -106,6 +106,7 @@ def test_unknown_experiment_is_refused():
         ([1.0, 0.8, 0.7, 0.7, 0.7], "falls, then stays flat"),
         ([0.7, 0.7, 0.8, 0.9, 1.0], "lowest at small L"),
         ([0.7, 0.705, 0.7, 0.702, 0.7], "flat"),
+        ([1.86, 2.05, 1.95, 1.86, 1.86], "rises, then falls back"),
     ],
 )
 def test_fig7_curve_shapes_in_words(curve, words):

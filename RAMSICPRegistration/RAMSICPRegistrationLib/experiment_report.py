@@ -63,7 +63,7 @@ def _plot_grouped(path, groups, rows, title, xlabel):
         sds = [groups[g][row]["sd"] for g in groups]
         axes.bar(positions + (offset - (len(rows) - 1) / 2) * width, means, width, yerr=sds, capsize=2, label=row)
     axes.set_xticks(positions)
-    axes.set_xticklabels(list(groups))
+    axes.set_xticklabels(list(groups), rotation=10 if max(len(g) for g in groups) > 12 else 0)
     axes.set_xlabel(xlabel)
     _save(plt, figure, axes, path, title)
 
@@ -75,7 +75,7 @@ def _plot_fig8(data, path):
         mean, sd = PAPER["fig8"][key]
         groups[label]["paper"] = {"mean": mean, "sd": sd}
     for label in groups:
-        groups[label].setdefault("paper", {"mean": 0.0, "sd": 0.0})
+        groups[label].setdefault("paper", {"mean": np.nan, "sd": np.nan})  # not in the paper: no bar
     _plot_grouped(path, groups, ("ours", "paper"), "Fig. 8: TRE by method (markers placed by hand)", "method")
 
 
@@ -208,6 +208,8 @@ def _curve_shape(mean, tolerance_mm=0.01):
     above_at_start, above_at_end = mean[0] - mean.min(), mean[-1] - mean.min()
     if above_at_start > tolerance_mm and above_at_end > tolerance_mm:
         return "falls, then rises (as in the paper)"
+    if mean.max() - max(mean[0], mean[-1]) > tolerance_mm:
+        return "rises, then falls back (unlike the paper)"
     if above_at_start > tolerance_mm:
         return "falls, then stays flat to L = 5 (ICP-like)"
     if above_at_end > tolerance_mm:
