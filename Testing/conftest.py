@@ -98,3 +98,17 @@ def tibia_phantom(tibia_patient):
 
     vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
     return make_ct_phantom(tibia_patient, vertices, triangles, seed=0)
+
+
+def headless_scene():
+    """A real vtkMRMLScene as Slicer's application sets it up for markups (selection node, markups logic)."""
+    import slicer
+
+    scene = slicer.vtkMRMLScene()
+    selection = slicer.vtkMRMLSelectionNode()
+    selection.SetSingletonTag("Singleton")
+    scene.AddNode(selection)
+    logic = slicer.vtkSlicerMarkupsLogic()
+    logic.SetMRMLScene(scene)
+    scene._markups_logic = logic  # keep the logic alive as long as the scene
+    return scene

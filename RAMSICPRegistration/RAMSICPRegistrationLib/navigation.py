@@ -1,0 +1,450 @@
+"""The RAMSICPRegistration module's logic: the surgeon's workflow on MRML nodes passed in (no Qt, no globals).
+
+Steps, as in the module's GUI: (1) image: CT -> segmentation, IPC model, marker fiducials; (2) tracker: the
+transform hierarchy ``ProbeTipToProbe -> ProbeToReference -> ReferenceToImage`` and pivot calibration;
+(3) patient points: marker centres in reference coordinates and probe points, each saved at once; (4) register:
+CR / CR-ICP / CR-RAMSICP, the result as the ``ReferenceToImage`` transform, a residual table with an include
+column, and a plot of the sweep; (5) verify: target TRE and the live tip-to-surface distance; (6) robot: eqs.
+3-4; (7) save and reload the scene. It works on any real MRML scene: Slicer's, or ``slicer-core``'s.
+"""
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import mrml_nodes
+from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, segment_bone
+from .marker_spheres import detect_marker_spheres, order_to_tool
+from .package_data import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from .pivot import pivot_calibration
+from .point_files import write_points
+from .registration import register
+from .robot import image_to_robot_base, robot_base_to_tracker
+from .surface_index import SurfaceIndex
+from .transforms import apply_transform
+from .volume_io import load_volume
+
+logger = logging.getLogger(__name__)
+
+PARAMETER_NODE_NAME = "RAMSICPRegistration"
+#: Seconds without a new pose after which a tracked transform counts as stale (as SlicerIGT's Watchdog).
+STALE_AFTER_S = 1.0
+
+
+@dataclass(frozen=True)
+class ImageSideNodes:
+    """The image step's nodes and the marker detection's warnings."""
+
+    segmentation: object
+    ipc_model: object
+    markers_image: object
+    warnings: tuple
+
+
+def matrix_of(node, name="transform node"):
+    """(4, 4) matrix to parent of a linear ``vtkMRMLTransformNode``; raises TypeError/ValueError on a wrong node."""
+    if node is None or not (hasattr(node, "IsA") and node.IsA("vtkMRMLTransformNode")):
+        raise TypeError(f"{name}: expected a linear transform node, got {type(node).__name__}")
+    if not node.IsLinear():
+        raise ValueError(f"{name} {node.GetName()!r} is not linear; use a linear transform node")
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    matrix = vtkMatrix4x4()
+    node.GetMatrixTransformToParent(matrix)
+    return np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+
+
+def set_matrix(node, matrix):
+    """Write a (4, 4) matrix into a linear transform node (as its transform to parent)."""
+    node.SetMatrixTransformToParent(mrml_nodes._vtk_matrix(matrix))
+
+
+def points_of(node, name="point list"):
+    """(N, 3) RAS positions of a markups node, or the points of a model node."""
+    if node is None:
+        raise ValueError(f"{name}: no node selected; pick one")
+    if node.IsA("vtkMRMLMarkupsNode"):
+        return mrml_nodes.fiducial_positions(node)
+    if node.IsA("vtkMRMLModelNode"):
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        data = node.GetPolyData()
+        if data is None or data.GetNumberOfPoints() == 0:
+            raise ValueError(f"{name} {node.GetName()!r} has no points; build the IPC from the CT first")
+        return vtk_to_numpy(data.GetPoints().GetData()).astype(np.float64)
+    raise TypeError(f"{name}: expected a markups or model node, got {node.GetClassName()}")
+
+
+class NavigationLogic:
+    """The workflow's logic on one MRML scene.
+
+    Args:
+        scene: the vtkMRMLScene (``slicer.mrmlScene`` inside Slicer).
+        autosave_directory: every collected probe point is written here at once (``<node name>.mrk.json``).
+        clock: monotonic clock in seconds, for stale-tracking checks (injectable for tests).
+    """
+
+    def __init__(self, scene, autosave_directory=None, clock=time.monotonic):
+        self.scene = scene
+        self.autosave_directory = None if autosave_directory is None else Path(autosave_directory)
+        self.clock = clock
+        self._last_update = {}
+        self._index_cache = (None, None, None)
+
+    # -- parameters ---------------------------------------------------------------------------------------
+    @property
+    def parameter_node(self):
+        """The module's ``vtkMRMLScriptedModuleNode``; saved and reloaded with the scene."""
+        node = self.scene.GetFirstNodeByName(PARAMETER_NODE_NAME)
+        if node is None:
+            node = self.scene.AddNewNodeByClass("vtkMRMLScriptedModuleNode", PARAMETER_NODE_NAME)
+            node.SetAttribute("ModuleName", PARAMETER_NODE_NAME)
+        return node
+
+    def transform_node(self, name):
+        """The linear transform node called ``name``, created once, then reused (as SlicerOpenIGTLink does)."""
+        node = self.scene.GetFirstNodeByName(name)
+        if node is None:
+            node = self.scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", name)
+        return node
+
+    # -- 1. image ------------------------------------------------------------------------------------------
+    def process_ct(self, volume_node, threshold_hu=DEFAULT_THRESHOLD_HU, tool_id=DEFAULT_REFERENCE_TOOL):
+        """CT volume node -> segmentation node, IPC model node and marker-centre fiducials (image, tool order)."""
+        volume = load_volume(volume_node)
+        segmentation = segment_bone(volume, threshold_hu)
+        surface = bone_surface(volume, segmentation)
+        detection = detect_marker_spheres(volume, segmentation)
+        spheres = list(detection.spheres)
+        warnings = list(detection.warnings)
+        if len(spheres) == len(tool_marker_geometry(tool_id)):
+            order, _ = order_to_tool(np.array([s.centre for s in spheres]), tool_marker_geometry(tool_id))
+            spheres = [spheres[i] for i in order]
+        segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, [s.label for s in spheres])
+        ipc = mrml_nodes.model_node(self.scene, surface.points, surface.triangles, name="IPC")
+        markers = mrml_nodes.fiducial_node(
+            self.scene,
+            np.array([s.centre for s in spheres]).reshape(-1, 3),
+            [f"M{i + 1} {s.status}" for i, s in enumerate(spheres)],
+            name="MarkersImage",
+        )
+        parameters = self.parameter_node
+        parameters.SetParameter("ThresholdHU", str(segmentation.threshold_hu))
+        for role, node in (
+            ("CT", volume_node),
+            ("IPC", ipc),
+            ("MarkersImage", markers),
+            ("Segmentation", segmentation_node),
+        ):
+            parameters.SetNodeReferenceID(role, node.GetID())
+        return ImageSideNodes(segmentation_node, ipc, markers, tuple(warnings))
+
+    # -- 2. tracker ----------------------------------------------------------------------------------------
+    def build_hierarchy(self, probe_tip_to_probe, probe_to_reference, reference_to_image):
+        """Chain ``ProbeTipToProbe -> ProbeToReference -> ReferenceToImage`` so the tracked tip moves over the CT."""
+        for node, name in (
+            (probe_tip_to_probe, "ProbeTipToProbe"),
+            (probe_to_reference, "ProbeToReference"),
+            (reference_to_image, "ReferenceToImage"),
+        ):
+            matrix_of(node, name)
+        probe_tip_to_probe.SetAndObserveTransformNodeID(probe_to_reference.GetID())
+        probe_to_reference.SetAndObserveTransformNodeID(reference_to_image.GetID())
+
+    def pivot_calibrate(self, probe_to_reference_poses, probe_tip_to_probe):
+        """Pivot calibration from recorded (N, 4, 4) ProbeToReference poses; writes ``ProbeTipToProbe``."""
+        result = pivot_calibration(probe_to_reference_poses)
+        set_matrix(probe_tip_to_probe, result.probe_tip_to_probe)
+        self.parameter_node.SetParameter("PivotRmsMm", f"{result.rms_mm:.6g}")
+        return result
+
+    def note_update(self, node):
+        """Record that a tracked transform just received a pose (the widget calls this from a node observer)."""
+        self._last_update[node.GetID()] = self.clock()
+
+    def check_tracking(self, node, name="ProbeToReference"):
+        """Raise RuntimeError when ``node`` has had no new pose for ``STALE_AFTER_S`` seconds."""
+        last = self._last_update.get(node.GetID())
+        if last is None or self.clock() - last > STALE_AFTER_S:
+            age = "never" if last is None else f"{self.clock() - last:.1f} s ago"
+            raise RuntimeError(
+                f"{name} is not updating (last pose: {age}); check that the tracker sees the probe "
+                "and the reference body, then collect again"
+            )
+
+    def tip_in_reference(self, probe_to_reference, probe_tip_to_probe):
+        """Probe-tip position (3,) in reference coordinates: ProbeToReference @ ProbeTipToProbe @ origin (eq. 2)."""
+        tip = matrix_of(probe_to_reference, "ProbeToReference") @ matrix_of(probe_tip_to_probe, "ProbeTipToProbe")
+        return tip[:3, 3].copy()
+
+    # -- 3. patient points ---------------------------------------------------------------------------------
+    def markers_patient_node(self, tool_id=DEFAULT_REFERENCE_TOOL):
+        """Fiducials of the reference body's marker centres in reference coordinates, from the NDI tool geometry."""
+        node = mrml_nodes.fiducial_node(self.scene, tool_marker_geometry(tool_id), name="MarkersPatient")
+        self.parameter_node.SetNodeReferenceID("MarkersPatient", node.GetID())
+        return node
+
+    def collect_point(self, points_node, probe_to_reference, probe_tip_to_probe, min_distance_mm=None):
+        """Add the current tip position (reference coordinates) to ``points_node`` and save the list at once.
+
+        With ``min_distance_mm`` (auto-collect) the point is only added if it lies at least that far from the
+        last one. Returns the new point's index, or None when auto-collect skipped it.
+        """
+        self.check_tracking(probe_to_reference)
+        tip = self.tip_in_reference(probe_to_reference, probe_tip_to_probe)
+        count = points_node.GetNumberOfControlPoints()
+        if min_distance_mm is not None and count:
+            last = np.array(points_node.GetNthControlPointPosition(count - 1))
+            if np.linalg.norm(tip - last) < min_distance_mm:
+                return None
+        points_node.AddControlPoint(tip.tolist(), f"P{count + 1}")
+        self._autosave(points_node)
+        return count
+
+    def _autosave(self, node):
+        if self.autosave_directory is None:
+            return
+        self.autosave_directory.mkdir(parents=True, exist_ok=True)
+        positions = mrml_nodes.fiducial_positions(node)
+        labels = [node.GetNthControlPointLabel(i) for i in range(len(positions))]
+        path = self.autosave_directory / f"{node.GetName()}.mrk.json"
+        temporary = path.with_suffix(".tmp.json")
+        write_points(temporary, positions, labels)
+        temporary.replace(path)  # atomic: a crash leaves the previous complete file, never half a file
+
+    # -- 4. register ---------------------------------------------------------------------------------------
+    def register(
+        self,
+        ipc_node,
+        ppc_node,
+        markers_image_node,
+        markers_patient_node,
+        targets_image_node=None,
+        targets_patient_node=None,
+        method="cr-ramsicp",
+        sweep=True,
+        scale=None,
+        policy=None,
+    ):
+        """Register and write the results into the scene.
+
+        Probe points whose 'include' cell in the residual table is off are left out. Writes the
+        ``ReferenceToImage`` transform, the ``RegistrationResiduals`` table, the ``RegistrationSweep`` plot and the
+        figures into the parameter node. Raises ValueError/TypeError with what to do.
+        """
+        ipc = points_of(ipc_node, "IPC model")
+        ppc_all = points_of(ppc_node, "probe points")
+        include = self._included(len(ppc_all))
+        if include.sum() < 3:
+            raise ValueError(f"only {include.sum()} probe points are included; include or collect at least 3")
+        markers_image = points_of(markers_image_node, "marker centres (image)")
+        markers_patient = points_of(markers_patient_node, "marker centres (patient)")
+        if min(len(markers_image), len(markers_patient)) < 3:
+            raise ValueError(
+                "the coarse registration needs at least 3 marker centres in both the image and the "
+                "patient; detect or place the missing ones"
+            )
+        targets = [None, None]
+        if targets_image_node is not None and targets_patient_node is not None:
+            targets = [
+                points_of(targets_image_node, "targets (image)"),
+                points_of(targets_patient_node, "targets (patient)"),
+            ]
+        result = register(
+            self._index(ipc_node, ipc),
+            ppc_all[include],
+            markers_image,
+            markers_patient,
+            targets[0],
+            targets[1],
+            method=method,
+            sweep=sweep and method == "cr-ramsicp",
+            scale=scale if method == "cr-ramsicp" else None,
+            policy=policy,
+        )
+        reference_to_image = self.transform_node("ReferenceToImage")
+        set_matrix(reference_to_image, result.reference_to_image)
+        residuals = np.full(len(ppc_all), np.nan)
+        residuals[include] = result.residuals_mm
+        self._write_residual_table(ppc_node, ppc_all, residuals, include)
+        if result.sweep:
+            self._write_sweep_plot(result)
+        parameters = self.parameter_node
+        for key, value in (
+            ("Method", method),
+            ("Scale", result.scale),
+            ("ScalePolicy", result.scale_policy),
+            ("FreMm", result.fre_mm),
+            ("PpcRmsMm", result.ppc_rms_mm),
+            ("TreMm", result.tre_mm),
+            ("Warnings", "\n".join(result.warnings)),
+        ):
+            parameters.SetParameter(key, "" if value is None else str(value))
+        for role, node in (("PPC", ppc_node), ("ReferenceToImage", reference_to_image)):
+            parameters.SetNodeReferenceID(role, node.GetID())
+        return result
+
+    def _index(self, ipc_node, ipc):
+        """The KD-tree of the IPC, rebuilt only when the IPC model changed."""
+        key = (ipc_node.GetID(), ipc_node.GetPolyData().GetMTime())
+        if self._index_cache[0] != key:
+            self._index_cache = (key, SurfaceIndex(ipc), ipc_node)
+        return self._index_cache[1]
+
+    def _included(self, count):
+        table = self.scene.GetFirstNodeByName("RegistrationResiduals")
+        if table is None or table.GetNumberOfRows() != count:
+            return np.ones(count, dtype=bool)
+        column = table.GetTable().GetColumnByName("include")
+        return np.array([bool(column.GetValue(row)) for row in range(count)])
+
+    def set_included(self, point_index, included):
+        """Include or exclude one probe point from the next registration (the table's 'include' cell)."""
+        table = self.scene.GetFirstNodeByName("RegistrationResiduals")
+        if table is None:
+            raise ValueError("no residual table yet; register once first")
+        table.GetTable().GetColumnByName("include").SetValue(point_index, int(bool(included)))
+        table.GetTable().Modified()
+
+    def _write_residual_table(self, ppc_node, ppc, residuals, include):
+        from vtkmodules.vtkCommonCore import vtkDoubleArray, vtkIntArray, vtkStringArray
+        from vtkmodules.vtkCommonDataModel import vtkTable
+
+        table = vtkTable()
+        labels = vtkStringArray()
+        labels.SetName("point")
+        columns = {name: vtkDoubleArray() for name in ("x", "y", "z", "residual_mm")}
+        for name, array in columns.items():
+            array.SetName(name)
+        included = vtkIntArray()
+        included.SetName("include")
+        for row in range(len(ppc)):
+            labels.InsertNextValue(ppc_node.GetNthControlPointLabel(row))
+            for axis, name in enumerate(("x", "y", "z")):
+                columns[name].InsertNextValue(ppc[row, axis])
+            columns["residual_mm"].InsertNextValue(residuals[row])
+            included.InsertNextValue(int(include[row]))
+        for array in (labels, *columns.values(), included):
+            table.AddColumn(array)
+        node = self.scene.GetFirstNodeByName("RegistrationResiduals")
+        if node is None:
+            node = self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationResiduals")
+        node.SetAndObserveTable(table)
+
+    def _write_sweep_plot(self, result):
+        from vtkmodules.vtkCommonCore import vtkDoubleArray
+        from vtkmodules.vtkCommonDataModel import vtkTable
+
+        table = vtkTable()
+        names = ["L", "rms_mm"] + (["tre_mm"] if result.sweep[0].tre_mm is not None else [])
+        for name in names:
+            array = vtkDoubleArray()
+            array.SetName(name)
+            for entry in result.sweep:
+                value = {"L": entry.scale, "rms_mm": entry.result.rms_mm, "tre_mm": entry.tre_mm}[name]
+                array.InsertNextValue(value)
+            table.AddColumn(array)
+        table_node = self.scene.GetFirstNodeByName("RegistrationSweepTable")
+        if table_node is None:
+            table_node = self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationSweepTable")
+        table_node.SetAndObserveTable(table)
+        chart = self.scene.GetFirstNodeByName("RegistrationSweep")
+        if chart is None:
+            chart = self.scene.AddNewNodeByClass("vtkMRMLPlotChartNode", "RegistrationSweep")
+            chart.SetXAxisTitle("scale factor L")
+            chart.SetYAxisTitle("mm")
+        for name in names[1:]:
+            series = self.scene.GetFirstNodeByName(f"RegistrationSweep {name}")
+            if series is None:
+                series = self.scene.AddNewNodeByClass("vtkMRMLPlotSeriesNode", f"RegistrationSweep {name}")
+                chart.AddAndObservePlotSeriesNodeID(series.GetID())
+            series.SetAndObserveTableNodeID(table_node.GetID())
+            series.SetXColumnName("L")
+            series.SetYColumnName(name)
+            series.SetPlotType(series.PlotTypeScatter)
+
+    # -- 5. verify -----------------------------------------------------------------------------------------
+    def tip_to_surface_mm(self, ipc_node, probe_to_reference, probe_tip_to_probe, reference_to_image):
+        """Distance (mm) from the tracked tip, mapped into the image, to the closest IPC point."""
+        tip = self.tip_in_reference(probe_to_reference, probe_tip_to_probe)
+        tip_image = apply_transform(matrix_of(reference_to_image, "ReferenceToImage"), tip[None])
+        return float(self._index(ipc_node, points_of(ipc_node, "IPC model")).nearest(tip_image)[0][0])
+
+    # -- 6. robot ------------------------------------------------------------------------------------------
+    def robot_calibration(self, points_robot, points_tracker, reference_to_tracker, reference_to_image):
+        """Eqs. 3-4: writes and returns the ``RobotBaseToTracker`` and ``ImageToRobotBase`` transform nodes."""
+        base_to_tracker = robot_base_to_tracker(points_robot, points_tracker)
+        image_to_base = image_to_robot_base(
+            base_to_tracker,
+            matrix_of(reference_to_tracker, "ReferenceToTracker"),
+            matrix_of(reference_to_image, "ReferenceToImage"),
+        )
+        nodes = []
+        for name, matrix in (("RobotBaseToTracker", base_to_tracker), ("ImageToRobotBase", image_to_base)):
+            node = self.transform_node(name)
+            set_matrix(node, matrix)
+            nodes.append(node)
+        return tuple(nodes)
+
+    # -- 7. save and reload --------------------------------------------------------------------------------
+    def save(self, path):
+        """Save the scene as ``path`` (.mrml) with every node's data beside it; returns the files written."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        written = []
+        nodes = self.scene.GetNodesByClass("vtkMRMLStorableNode")
+        for index in range(nodes.GetNumberOfItems()):
+            node = nodes.GetItemAsObject(index)
+            if node.GetHideFromEditors() or not _has_data(node):
+                continue
+            if node.GetStorageNode() is None and not node.AddDefaultStorageNode():
+                raise RuntimeError(f"cannot save {node.GetName()!r}: no storage for {node.GetClassName()}")
+            storage = node.GetStorageNode()
+            extension = storage.GetDefaultWriteFileExtension()
+            file_name = path.parent / f"{_safe(node.GetName())}-{_safe(node.GetID())}.{extension}"
+            storage.SetFileName(str(file_name))
+            if not storage.WriteData(node):
+                raise RuntimeError(f"writing {node.GetName()!r} to {file_name} failed")
+            written.append(file_name)
+        self.scene.SetRootDirectory(str(path.parent))
+        self.scene.SetURL(str(path))
+        if not self.scene.Commit():
+            raise RuntimeError(f"writing the scene file {path} failed")
+        return [path, *written]
+
+
+def load_scene(scene, path):
+    """Read a scene saved by ``NavigationLogic.save`` into ``scene``, data included."""
+    scene.SetURL(str(path))
+    if not scene.Import():
+        raise RuntimeError(f"{path}: cannot read the scene")
+    nodes = scene.GetNodesByClass("vtkMRMLStorableNode")
+    for index in range(nodes.GetNumberOfItems()):
+        node = nodes.GetItemAsObject(index)
+        storage = node.GetStorageNode()
+        if storage is not None and storage.GetFileName() and not storage.ReadData(node):
+            raise RuntimeError(f"{path}: cannot read the data of {node.GetName()!r} from {storage.GetFileName()}")
+    return scene
+
+
+def _has_data(node):
+    if node.IsA("vtkMRMLTransformNode"):
+        return True
+    if node.IsA("vtkMRMLMarkupsNode"):
+        return True
+    if node.IsA("vtkMRMLModelNode"):
+        return node.GetPolyData() is not None
+    if node.IsA("vtkMRMLTableNode"):
+        return node.GetTable() is not None
+    if node.IsA("vtkMRMLVolumeNode"):
+        return node.GetImageData() is not None
+    if node.IsA("vtkMRMLSegmentationNode"):
+        return node.GetSegmentation() is not None and node.GetSegmentation().GetNumberOfSegments() > 0
+    return False
+
+
+def _safe(text):
+    return "".join(character if character.isalnum() else "_" for character in text)

@@ -1,0 +1,227 @@
+"""The Slicer module's workflow, step by step, on real MRML (slicer-core) and the tibia CT phantom.
+
+The probe is simulated as SlicerIGT's self-tests do: by writing matrices into the transform hierarchy.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import headless_scene, random_transform
+from RAMSICPRegistrationLib.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    probe_to_reference,
+    rotation_about_axis,
+)
+
+slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
+from RAMSICPRegistrationLib import mrml_nodes  # noqa: E402
+from RAMSICPRegistrationLib.navigation import NavigationLogic, load_scene, matrix_of, set_matrix  # noqa: E402
+
+TIP = np.array([0.0, 0.0, 150.0])  # probe tip offset in the probe frame (mm)
+
+
+class FakeClock:
+    """A clock the test moves by hand, for the stale-tracking checks."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture(scope="module")
+def workflow(tibia_phantom, tibia_patient, tmp_path_factory):
+    """Steps 1-4 run once on the phantom; the tests below check each step's result."""
+    volume, truth = tibia_phantom
+    scene = headless_scene()
+    clock = FakeClock()
+    folder = tmp_path_factory.mktemp("autosave")
+    logic = NavigationLogic(scene, autosave_directory=folder, clock=clock)
+    ct_node = mrml_nodes.volume_node(scene, volume, "CT")
+    image = logic.process_ct(ct_node)
+    # Tracker: ReferenceToTracker and ProbeToTracker stream in; ProbeToReference follows eq. 2.
+    tip_node, probe_node = logic.transform_node("ProbeTipToProbe"), logic.transform_node("ProbeToReference")
+    reference_to_image = logic.transform_node("ReferenceToImage")
+    logic.build_hierarchy(tip_node, probe_node, reference_to_image)
+    rng = np.random.default_rng(5)
+    reference_to_tracker = random_transform(rng, max_translation_mm=1500.0)
+    pivot_poses = []
+    for _ in range(40):
+        rotation = rotation_about_axis(rng.normal(size=3), np.radians(rng.uniform(-25, 25)))
+        pivot_poses.append(make_transform(rotation, np.array([20.0, 30.0, 40.0]) - rotation @ TIP))
+    pivot = logic.pivot_calibrate(np.array(pivot_poses), tip_node)
+    # Patient points: touch the true bone surface (noise-free) through the tracked probe.
+    markers_patient = logic.markers_patient_node()
+    ppc_node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "PPC")
+    trial = tibia_patient.simulate_trial(rng, marker_fle_mm=0.0, probe_noise_mm=0.0)
+    for point in trial.ppc:
+        probe_to_tracker = reference_to_tracker @ make_transform(np.eye(3), point - TIP)
+        set_matrix(probe_node, probe_to_reference(reference_to_tracker, probe_to_tracker))
+        logic.note_update(probe_node)
+        logic.collect_point(ppc_node, probe_node, tip_node)
+    result = logic.register(image.ipc_model, ppc_node, image.markers_image, markers_patient)
+    return dict(
+        scene=scene,
+        logic=logic,
+        clock=clock,
+        folder=folder,
+        image=image,
+        truth=truth,
+        trial=trial,
+        pivot=pivot,
+        nodes=dict(
+            tip=tip_node,
+            probe=probe_node,
+            reference_to_image=reference_to_image,
+            markers_patient=markers_patient,
+            ppc=ppc_node,
+            ct=ct_node,
+        ),
+        result=result,
+        reference_to_tracker=reference_to_tracker,
+        patient=tibia_patient,
+    )
+
+
+def test_step1_image_nodes(workflow):
+    image, truth = workflow["image"], workflow["truth"]
+    segments = image.segmentation.GetSegmentation()
+    assert segments.GetNumberOfSegments() == 5  # bone and 4 spheres
+    assert image.ipc_model.GetPolyData().GetNumberOfPoints() > 80_000
+    centres = mrml_nodes.fiducial_positions(image.markers_image)
+    np.testing.assert_allclose(centres, truth.marker_centres, atol=0.1)  # automatic, in the tool's order
+    assert image.markers_image.GetDisplayNode().GetGlyphSize() == 11.5 and image.warnings == ()
+
+
+def test_step2_hierarchy_and_pivot(workflow):
+    nodes = workflow["nodes"]
+    np.testing.assert_allclose(matrix_of(nodes["tip"])[:3, 3], TIP, atol=1e-9)
+    assert workflow["pivot"].rms_mm < 1e-9
+    assert nodes["tip"].GetParentTransformNode() is nodes["probe"]
+    assert nodes["probe"].GetParentTransformNode() is nodes["reference_to_image"]
+
+
+def test_step3_points_are_collected_and_saved_at_once(workflow):
+    ppc_node, trial = workflow["nodes"]["ppc"], workflow["trial"]
+    np.testing.assert_allclose(mrml_nodes.fiducial_positions(ppc_node), trial.ppc, atol=1e-9)
+    saved = json.loads((workflow["folder"] / "PPC.mrk.json").read_text())
+    assert len(saved["markups"][0]["controlPoints"]) == len(trial.ppc)
+    markers_patient = mrml_nodes.fiducial_positions(workflow["nodes"]["markers_patient"])
+    np.testing.assert_allclose(markers_patient, workflow["patient"].markers_reference)  # the tool geometry
+
+
+def test_step3_auto_collect_and_stale_probe(workflow):
+    logic, nodes, clock = workflow["logic"], workflow["nodes"], workflow["clock"]
+    scene = workflow["scene"]
+    points = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "AutoPoints")
+    set_matrix(nodes["probe"], make_transform(translation=(0.0, 0.0, -150.0)))
+    logic.note_update(nodes["probe"])
+    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) == 0
+    set_matrix(nodes["probe"], make_transform(translation=(1.0, 0.0, -150.0)))  # 1 mm: too close
+    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) is None
+    set_matrix(nodes["probe"], make_transform(translation=(3.0, 0.0, -150.0)))
+    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) == 1
+    clock.now += 5.0  # the tracker stops sending
+    with pytest.raises(RuntimeError, match="ProbeToReference is not updating .* 5.0 s ago"):
+        logic.collect_point(points, nodes["probe"], nodes["tip"])
+    assert points.GetNumberOfControlPoints() == 2  # nothing collected was lost
+
+
+def test_step4_registration_result_nodes(workflow):
+    scene, result, patient = workflow["scene"], workflow["result"], workflow["patient"]
+    computed = matrix_of(workflow["nodes"]["reference_to_image"])
+    np.testing.assert_allclose(computed, result.reference_to_image)
+    targets = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image)
+    errors = np.linalg.norm(apply_transform(computed, targets) - patient.targets_image, axis=1)
+    assert errors.max() < 0.3  # automatic centres and exact touches: only the CT's own error remains
+    table = scene.GetFirstNodeByName("RegistrationResiduals")
+    assert table.GetNumberOfRows() == 40
+    chart = scene.GetFirstNodeByName("RegistrationSweep")
+    assert chart.GetNumberOfPlotSeriesNodes() == 1  # RMS (no targets given)
+    assert float(workflow["logic"].parameter_node.GetParameter("FreMm")) == pytest.approx(result.fre_mm)
+
+
+def test_step4_excluding_a_point_reruns_without_it(workflow):
+    logic, nodes, image = workflow["logic"], workflow["nodes"], workflow["image"]
+    logic.set_included(7, False)
+    result = logic.register(image.ipc_model, nodes["ppc"], image.markers_image, nodes["markers_patient"])
+    assert len(result.residuals_mm) == 39
+    table = workflow["scene"].GetFirstNodeByName("RegistrationResiduals").GetTable()
+    assert np.isnan(table.GetColumnByName("residual_mm").GetValue(7))
+    assert table.GetColumnByName("include").GetValue(7) == 0
+    logic.set_included(7, True)
+
+
+def test_step5_tip_to_surface_distance(workflow):
+    logic, nodes, patient = workflow["logic"], workflow["nodes"], workflow["patient"]
+    on_bone = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image[:1])[0]
+    set_matrix(nodes["probe"], make_transform(translation=on_bone - TIP))
+    distance = logic.tip_to_surface_mm(
+        workflow["image"].ipc_model, nodes["probe"], nodes["tip"], nodes["reference_to_image"]
+    )
+    assert distance < 0.5
+
+
+def test_step6_robot_nodes(workflow):
+    logic, nodes = workflow["logic"], workflow["nodes"]
+    rng = np.random.default_rng(9)
+    truth = random_transform(rng, max_translation_mm=800.0)
+    robot_points = np.array([[300.0, 0.0, 200.0], [360.0, 10.0, 200.0], [310.0, 70.0, 230.0]])
+    reference_to_tracker = logic.transform_node("ReferenceToTracker")
+    set_matrix(reference_to_tracker, workflow["reference_to_tracker"])
+    base_node, image_node = logic.robot_calibration(
+        robot_points, apply_transform(truth, robot_points), reference_to_tracker, nodes["reference_to_image"]
+    )
+    np.testing.assert_allclose(matrix_of(base_node), truth, atol=1e-9)
+    expected = (
+        invert_transform(truth)
+        @ workflow["reference_to_tracker"]
+        @ invert_transform(matrix_of(nodes["reference_to_image"]))
+    )
+    np.testing.assert_allclose(matrix_of(image_node), expected, atol=1e-9)
+
+
+def test_step7_save_and_reload_reproduce_the_registration(workflow, tmp_path):
+    logic, nodes, image = workflow["logic"], workflow["nodes"], workflow["image"]
+    before = logic.register(image.ipc_model, nodes["ppc"], image.markers_image, nodes["markers_patient"])
+    written = logic.save(tmp_path / "scene.mrml")
+    assert (tmp_path / "scene.mrml").is_file() and len(written) > 5
+    reloaded = load_scene(headless_scene(), tmp_path / "scene.mrml")
+    original = matrix_of(workflow["nodes"]["reference_to_image"])
+    # Slicer stores linear transforms as ITK HDF5 in LPS, inverted: the round trip is exact to float rounding.
+    np.testing.assert_allclose(matrix_of(reloaded.GetFirstNodeByName("ReferenceToImage")), original, rtol=0, atol=1e-9)
+    again = NavigationLogic(reloaded)
+    result = again.register(
+        reloaded.GetFirstNodeByName("IPC"),
+        reloaded.GetFirstNodeByName("PPC"),
+        reloaded.GetFirstNodeByName("MarkersImage"),
+        reloaded.GetFirstNodeByName("MarkersPatient"),
+    )
+    np.testing.assert_allclose(result.reference_to_image, before.reference_to_image, rtol=0, atol=1e-9)
+    assert again.parameter_node.GetParameter("Method") == "cr-ramsicp"
+
+
+def test_bad_nodes_and_inputs_say_what_to_do(workflow):
+    logic, nodes, image, scene = workflow["logic"], workflow["nodes"], workflow["image"], workflow["scene"]
+    with pytest.raises(TypeError, match="expected a linear transform node"):
+        logic.build_hierarchy(nodes["ppc"], nodes["probe"], nodes["reference_to_image"])
+    two = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "TwoMarkers")
+    two.AddControlPoint([0.0, 0.0, 0.0], "a")
+    two.AddControlPoint([10.0, 0.0, 0.0], "b")
+    with pytest.raises(ValueError, match="needs at least 3 marker centres"):
+        logic.register(image.ipc_model, nodes["ppc"], two, nodes["markers_patient"])
+    with pytest.raises(TypeError, match="expected a markups or model node"):
+        logic.register(nodes["ct"], nodes["ppc"], image.markers_image, nodes["markers_patient"])
+    air = mrml_nodes.volume_node(scene, _air_volume(), "Air")
+    with pytest.raises(ValueError, match="no voxel is above the threshold"):
+        logic.process_ct(air)
+
+
+def _air_volume():
+    from RAMSICPRegistrationLib.volume_io import CTVolume
+
+    return CTVolume(voxels=np.full((20, 20, 20), -1000, np.int16), ijk_to_ras=np.diag([0.5, 0.5, 0.625, 1.0]))
