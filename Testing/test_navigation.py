@@ -12,15 +12,14 @@ from RAMSICPRegistrationLib.transforms import (
     apply_transform,
     invert_transform,
     make_transform,
-    probe_to_reference,
-    rotation_about_axis,
 )
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
 from RAMSICPRegistrationLib import mrml_nodes  # noqa: E402
 from RAMSICPRegistrationLib.navigation import NavigationLogic, load_scene, matrix_of, set_matrix  # noqa: E402
+from RAMSICPRegistrationLib.scenarios import TIP_IN_PROBE, check_workflow, run_workflow  # noqa: E402
 
-TIP = np.array([0.0, 0.0, 150.0])  # probe tip offset in the probe frame (mm)
+TIP = TIP_IN_PROBE  # probe tip offset in the probe frame (mm)
 
 
 class FakeClock:
@@ -35,56 +34,17 @@ class FakeClock:
 
 @pytest.fixture(scope="module")
 def workflow(tibia_phantom, tibia_patient, tmp_path_factory):
-    """Steps 1-4 run once on the phantom; the tests below check each step's result."""
+    """Steps 1-4 run once on the phantom through the shared scenario; the tests below check each step."""
     volume, truth = tibia_phantom
-    scene = headless_scene()
-    clock = FakeClock()
     folder = tmp_path_factory.mktemp("autosave")
-    logic = NavigationLogic(scene, autosave_directory=folder, clock=clock)
-    ct_node = mrml_nodes.volume_node(scene, volume, "CT")
-    image = logic.process_ct(ct_node)
-    # Tracker: ReferenceToTracker and ProbeToTracker stream in; ProbeToReference follows eq. 2.
-    tip_node, probe_node = logic.transform_node("ProbeTipToProbe"), logic.transform_node("ProbeToReference")
-    reference_to_image = logic.transform_node("ReferenceToImage")
-    logic.build_hierarchy(tip_node, probe_node, reference_to_image)
-    rng = np.random.default_rng(5)
-    reference_to_tracker = random_transform(rng, max_translation_mm=1500.0)
-    pivot_poses = []
-    for _ in range(40):
-        rotation = rotation_about_axis(rng.normal(size=3), np.radians(rng.uniform(-25, 25)))
-        pivot_poses.append(make_transform(rotation, np.array([20.0, 30.0, 40.0]) - rotation @ TIP))
-    pivot = logic.pivot_calibrate(np.array(pivot_poses), tip_node)
-    # Patient points: touch the true bone surface (noise-free) through the tracked probe.
-    markers_patient = logic.markers_patient_node()
-    ppc_node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "PPC")
-    trial = tibia_patient.simulate_trial(rng, marker_fle_mm=0.0, probe_noise_mm=0.0)
-    for point in trial.ppc:
-        probe_to_tracker = reference_to_tracker @ make_transform(np.eye(3), point - TIP)
-        set_matrix(probe_node, probe_to_reference(reference_to_tracker, probe_to_tracker))
-        logic.note_update(probe_node)
-        logic.collect_point(ppc_node, probe_node, tip_node)
-    result = logic.register(image.ipc_model, ppc_node, image.markers_image, markers_patient)
-    return dict(
-        scene=scene,
-        logic=logic,
-        clock=clock,
-        folder=folder,
-        image=image,
-        truth=truth,
-        trial=trial,
-        pivot=pivot,
-        nodes=dict(
-            tip=tip_node,
-            probe=probe_node,
-            reference_to_image=reference_to_image,
-            markers_patient=markers_patient,
-            ppc=ppc_node,
-            ct=ct_node,
-        ),
-        result=result,
-        reference_to_tracker=reference_to_tracker,
-        patient=tibia_patient,
-    )
+    clock = FakeClock()
+    state = run_workflow(headless_scene(), tibia_patient, volume, truth, autosave_directory=folder, clock=clock)
+    return {**state, "clock": clock, "folder": folder}
+
+
+def test_the_slicer_self_test_scenario_passes(workflow):
+    figures = check_workflow(workflow)  # exactly what the module's Test class runs inside Slicer
+    assert figures["marker_error_mm"] < 0.1 and figures["target_error_mm"] < 0.3
 
 
 def test_step1_image_nodes(workflow):
