@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
 
 
@@ -60,9 +61,10 @@ def analytic_volume(
     a signed distance (negative inside). The grid is centred on ``centre`` (RAS), its axes turned by
     ``rotation_deg`` about (1, 1, 1) from L, P, S (an LPS-aligned scanner grid).
     """
+    from scipy import ndimage
+
     from RAMSICPRegistrationLib.transforms import rotation_about_axis
     from RAMSICPRegistrationLib.volume_io import CTVolume
-    from scipy import ndimage
 
     spacing = np.asarray(spacing, dtype=np.float64)
     shape = np.ceil(np.asarray(size_mm) / spacing).astype(int)

@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.point_files import write_points
 from RAMSICPRegistrationLib.registration import register

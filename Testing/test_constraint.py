@@ -1,6 +1,7 @@
 """Warnings when probe points leave a motion free: plane, cylinder, and a fully constraining corner."""
 
 import numpy as np
+
 from RAMSICPRegistrationLib.constraint import analyse_pose_constraint
 
 

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import nibabel
 import numpy as np
+
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh, write_phantom
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
@@ -106,8 +107,9 @@ def test_cli_ipc_bad_inputs(tmp_path, capsys):
 
 
 def test_real_ct_surface_matches_an_independent_segmentation():
-    from RAMSICPRegistrationLib.ct_segmentation import iso_surface
     from scipy.spatial import cKDTree
+
+    from RAMSICPRegistrationLib.ct_segmentation import iso_surface
 
     volume = load_volume(DATA / "example_ct.nii.gz")
     surface = bone_surface(volume, segment_bone(volume))

@@ -2,9 +2,11 @@
 
 import numpy as np
 import pytest
-from conftest import analytic_volume, sphere_sdf
+
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
 from RAMSICPRegistrationLib.marker_spheres import fit_sphere
+
+from conftest import analytic_volume, sphere_sdf
 
 CENTRE = np.array([10.3, -19.6, 30.2])
 

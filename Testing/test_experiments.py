@@ -4,9 +4,10 @@ import json
 
 import numpy as np
 import pytest
+from scipy import stats
+
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.experiments import FIG9_LEVELS_MM, run_experiments
-from scipy import stats
 
 
 @pytest.fixture(scope="module")

@@ -2,11 +2,13 @@
 
 import numpy as np
 import pytest
-from conftest import ellipsoid_points
+
 from RAMSICPRegistrationLib.icp import MatchingRanges, icp, ramsicp
 from RAMSICPRegistrationLib.paired_point import rigid_procrustes
 from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+
+from conftest import ellipsoid_points
 
 TRUE_POSE = make_transform(rotation_about_axis((1.0, 2.0, 3.0), np.radians(35.0)), (12.0, -7.0, 30.0))
 CR_ERROR = make_transform(rotation_about_axis((0.3, -1.0, 0.5), np.radians(1.0)), (0.4, -0.3, 0.25))

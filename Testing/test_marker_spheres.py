@@ -2,11 +2,13 @@
 
 import numpy as np
 import pytest
-from conftest import analytic_volume, sphere_sdf
+
 from RAMSICPRegistrationLib.ct_segmentation import segment_bone
 from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
 from RAMSICPRegistrationLib.package_data import tool_marker_geometry
 from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis
+
+from conftest import analytic_volume, sphere_sdf
 
 RADIUS = 5.75
 

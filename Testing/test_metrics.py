@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.metrics import fle_from_fre, predicted_tre, target_registration_error
 from RAMSICPRegistrationLib.paired_point import rigid_procrustes
 from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis

@@ -7,12 +7,14 @@ import json
 
 import numpy as np
 import pytest
-from conftest import headless_scene, random_transform
+
 from RAMSICPRegistrationLib.transforms import (
     apply_transform,
     invert_transform,
     make_transform,
 )
+
+from conftest import headless_scene, random_transform
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
 from RAMSICPRegistrationLib import mrml_nodes  # noqa: E402

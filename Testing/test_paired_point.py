@@ -2,9 +2,11 @@
 
 import numpy as np
 import pytest
-from conftest import random_transform
+
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
+
+from conftest import random_transform
 
 
 def test_recovers_known_transform_to_1e9(rng):

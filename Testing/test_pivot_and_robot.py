@@ -2,10 +2,12 @@
 
 import numpy as np
 import pytest
-from conftest import random_transform
+
 from RAMSICPRegistrationLib.pivot import pivot_calibration
 from RAMSICPRegistrationLib.robot import auxiliary_frame, image_to_robot_base, robot_base_to_tracker
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+
+from conftest import random_transform
 
 TIP = np.array([1.5, -2.0, 160.0])  # tip offset in the probe frame (mm)
 PIVOT = np.array([30.0, -40.0, 250.0])  # divot in the reference frame (mm)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.registration import register
 from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.package_data import bone_mesh_path
 from RAMSICPRegistrationLib.point_files import PointFileError, write_points
 from RAMSICPRegistrationLib.surface_files import read_surface_mesh, read_surface_points, write_surface

@@ -2,13 +2,15 @@
 
 import numpy as np
 import pytest
-from conftest import ellipsoid_points
+
 from RAMSICPRegistrationLib.icp import FineResult, ramsicp
 from RAMSICPRegistrationLib.metrics import target_registration_error
 from RAMSICPRegistrationLib.registration import select_scale
 from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.sweep import PAPER_SCALES, SweepEntry, make_scales, sweep_scales
 from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
+
+from conftest import ellipsoid_points
 
 
 def test_paper_scales_are_1_to_5_step_0_2():

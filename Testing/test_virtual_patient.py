@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.metrics import target_registration_error
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
 from RAMSICPRegistrationLib.virtual_patient import sample_surface

@@ -4,6 +4,7 @@ import nibabel
 import nrrd
 import numpy as np
 import pytest
+
 from RAMSICPRegistrationLib.point_files import PointFileError
 from RAMSICPRegistrationLib.transforms import rotation_about_axis
 from RAMSICPRegistrationLib.volume_io import CTVolume, check_volume, load_volume, save_nrrd

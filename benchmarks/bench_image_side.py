@@ -15,6 +15,8 @@ import statistics
 import time
 
 import numpy as np
+from vtkmodules.vtkFiltersCore import vtkMarchingCubes
+
 from RAMSICPRegistrationLib.ct_phantom import HU, make_ct_phantom
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
 from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres
@@ -23,7 +25,6 @@ from RAMSICPRegistrationLib.surface_files import read_surface_mesh
 from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
 from RAMSICPRegistrationLib.volume_io import CTVolume
 from RAMSICPRegistrationLib.vtk_arrays import image_data
-from vtkmodules.vtkFiltersCore import vtkMarchingCubes
 
 TARGET_SECONDS = 10.0
 SHAPE = (512, 512, 400)

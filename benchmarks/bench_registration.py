@@ -16,6 +16,11 @@ import statistics
 import time
 
 import numpy as np
+from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.vtkCommonCore import vtkPoints
+from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
+from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
+
 from RAMSICPRegistrationLib.icp import icp
 from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
@@ -24,10 +29,6 @@ from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.sweep import PAPER_SCALES, sweep_scales
 from RAMSICPRegistrationLib.transforms import apply_transform
 from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
-from vtkmodules.util.numpy_support import numpy_to_vtk
-from vtkmodules.vtkCommonCore import vtkPoints
-from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
-from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
 
 TARGET_SECONDS = 0.1
 

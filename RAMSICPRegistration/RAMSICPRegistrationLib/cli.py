@@ -107,6 +107,7 @@ def _parser():
         help="ct: IPC and marker centres from a CT phantom (default); mesh: IPC sampled on the mesh",
     )
     demo.add_argument("--json", type=Path, help="write every trial's TRE as JSON")
+    demo.add_argument("--screenshot", type=Path, help="write a PNG of the last trial's registration (3-D view)")
     demo.set_defaults(run=_run_demo)
 
     ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
@@ -257,6 +258,7 @@ def _run_demo(arguments):
         bone=arguments.bone,
         image_source=arguments.image_source,
         progress=_ProgressBar(),
+        screenshot=arguments.screenshot,
     )
     total = time.perf_counter() - clock
     print(_format_demo(report, total))

@@ -50,6 +50,7 @@ class ImageSide:
     """What the image side produced: the IPC, the automatic marker centres (tool order) and its timings (s)."""
 
     ipc: np.ndarray
+    ipc_triangles: np.ndarray  # (K, 3) over ``ipc``, or None for a point cloud
     automatic_markers: np.ndarray  # (4, 3) or None
     marker_errors_mm: np.ndarray  # (4,) distance of each automatic centre from the truth, or None
     seconds: dict
@@ -119,7 +120,13 @@ class DemoReport:
 
 
 def run_demo(
-    trials=50, seed=0, bone="right-tibia", image_source="ct", target_cr_tre_mm=PAPER_TRE_MM["CR"][0], progress=None
+    trials=50,
+    seed=0,
+    bone="right-tibia",
+    image_source="ct",
+    target_cr_tre_mm=PAPER_TRE_MM["CR"][0],
+    progress=None,
+    screenshot=None,
 ):
     """Run the demo; see the module docstring.
 
@@ -127,6 +134,8 @@ def run_demo(
         trials: number of simulated registrations (>= 1).
         image_source: 'ct' (phantom CT, segmentation, automatic markers) or 'mesh' (IPC sampled on the mesh).
         progress: optional callable ``progress(step, done, total)`` for a progress bar.
+        screenshot: optional PNG path: a picture of the last trial's CR-RAMSICP (target-free L) registration
+            with hand-placed markers, the probe points coloured by their residual.
     """
     if trials < 1:
         raise ValueError(f"trials = {trials}: run at least 1 trial")
@@ -144,7 +153,14 @@ def run_demo(
         side = ct_image_side(patient, vertices, triangles, seed, report)
         modes = ("manual", "automatic")
     else:
-        side = ImageSide(ipc=patient.ipc, automatic_markers=None, marker_errors_mm=None, seconds={}, ipc_offset_mm=0.0)
+        side = ImageSide(
+            ipc=patient.ipc,
+            ipc_triangles=None,
+            automatic_markers=None,
+            marker_errors_mm=None,
+            seconds={},
+            ipc_offset_mm=0.0,
+        )
         modes = ("manual",)
 
     tre = {mode: {label: np.empty(trials) for label in METHOD_LABELS} for mode in modes}
@@ -164,6 +180,8 @@ def run_demo(
                 scales[mode][policy][trial], tre[mode][label][trial] = result.chosen[policy]
         report("registrations", trial + 1, trials)
     seconds["per_trial_and_mode"] = seconds["registration"] / (trials * len(modes))
+    if screenshot is not None:
+        _screenshot(screenshot, index, side, patient, data)
     return DemoReport(
         bone=bone,
         image_source=image_source,
@@ -207,9 +225,38 @@ def ct_image_side(patient, vertices, triangles, seed, report):
     offsets = signed_distance_to_mesh(surface.points, vertices, triangles, np.random.default_rng(seed))
     return ImageSide(
         ipc=surface.points,
+        ipc_triangles=surface.triangles,
         automatic_markers=automatic,
         marker_errors_mm=np.linalg.norm(automatic - truth.marker_centres, axis=1),
         seconds=seconds,
         ipc_offset_mm=float(np.median(offsets)),
         warnings=detection.warnings,
+    )
+
+
+def _screenshot(path, index, side, patient, data):
+    from .registration import register
+    from .scene_render import render_registration
+    from .transforms import apply_transform
+
+    result = register(
+        index,
+        data.ppc,
+        data.markers_image,
+        data.markers_patient,
+        data.targets_image,
+        data.targets_patient,
+        sweep=True,
+        policy="rms-plateau",
+    )
+    triangles = side.ipc_triangles
+    render_registration(
+        path,
+        side.ipc,
+        triangles,
+        apply_transform(result.reference_to_image, data.ppc),
+        result.residuals_mm,
+        patient.markers_image,
+        title=f"CR-RAMSICP (L = {result.scale:g}): TRE {result.tre_mm:.2f} mm, probe points "
+        f"{result.ppc_rms_mm:.2f} mm RMS",
     )
