@@ -240,17 +240,23 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
                 policy=parameters.policy if parameters.method == "cr-ramsicp" else None,
             )
             tre = "–" if result.tre_mm is None else f"{result.tre_mm:.2f} mm"
+            predicted = (
+                ""
+                if result.predicted_cr_tre_mm is None
+                else (f", CR TRE predicted {max(result.predicted_cr_tre_mm):.2f} mm (FLE {result.fle_mm:.2f} mm)")
+            )
             scale = "" if result.scale is None else f", L = {result.scale:g} ({result.scale_policy})"
             self.ui.resultsLabel.text = (
                 f"{result.method.upper()}{scale}: FRE {result.fre_mm:.2f} mm, probe points {result.ppc_rms_mm:.2f} mm "
-                f"RMS, TRE {tre}"
+                f"RMS, TRE {tre}{predicted}"
             )
             self._showWarnings(result.warnings)
-            self.logic.navigation.build_hierarchy(
-                parameters.probeTipToProbe,
-                parameters.probeToReference,
-                slicer.mrmlScene.GetFirstNodeByName("ReferenceToImage"),
-            )
+            if parameters.probeTipToProbe and parameters.probeToReference:  # the probe now moves over the CT
+                self.logic.navigation.build_hierarchy(
+                    parameters.probeTipToProbe,
+                    parameters.probeToReference,
+                    slicer.mrmlScene.GetFirstNodeByName("ReferenceToImage"),
+                )
             self.ui.residualTableView.setMRMLTableNode(slicer.mrmlScene.GetFirstNodeByName("RegistrationResiduals"))
 
     # Step 5: live readouts
