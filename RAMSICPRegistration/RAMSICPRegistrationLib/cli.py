@@ -11,11 +11,11 @@ import numpy as np
 
 from . import __version__
 from .ct_phantom import make_ct_phantom, write_phantom
-from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, resample_points, segment_bone
+from .ct_pipeline import process_ct
+from .ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
 from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .experiment_report import write_outputs
 from .experiments import EXPERIMENTS, run_experiments
-from .marker_spheres import detect_marker_spheres, order_to_tool
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
 from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .registration import METHODS, POLICIES, register
@@ -315,39 +315,21 @@ def _run_ipc(arguments):
     for path in (arguments.out, arguments.markers):
         if path is not None and _suffix(path) not in POINT_SUFFIXES + (".vtk", ".vtp", ".stl", ".ply", ".obj"):
             raise ValueError(f"{path}: unknown output type")
-    progress = _ProgressBar()
-    seconds = {}
     clock = time.perf_counter()
-    progress("loading CT", 0, 4)
     volume = load_volume(arguments.ct)
-    seconds["load"] = time.perf_counter() - clock
-    progress("segmentation", 1, 4)
-    clock = time.perf_counter()
-    segmentation = segment_bone(volume, threshold)
-    seconds["segmentation"] = time.perf_counter() - clock
-    progress("bone surface", 2, 4)
-    clock = time.perf_counter()
-    surface = bone_surface(volume, segmentation, fill_cavities=not arguments.keep_cavities)
-    points, triangles = surface.points, surface.triangles
+    load_seconds = time.perf_counter() - clock
+    image = process_ct(
+        volume,
+        threshold,
+        fill_cavities=not arguments.keep_cavities,
+        tool_markers=tool_marker_geometry(arguments.tool),
+        progress=_ProgressBar(),
+    )
+    seconds = {"load": load_seconds, **image.seconds}
+    segmentation, spheres, warnings = image.segmentation, list(image.spheres), list(image.warnings)
+    points, triangles = image.surface.points, image.surface.triangles
     if arguments.spacing is not None:
         points, triangles = resample_points(points, arguments.spacing), None
-    seconds["surface"] = time.perf_counter() - clock
-    progress("marker spheres", 3, 4)
-    clock = time.perf_counter()
-    detection = detect_marker_spheres(volume, segmentation)
-    seconds["marker_spheres"] = time.perf_counter() - clock
-    progress("marker spheres", 4, 4)
-    spheres = list(detection.spheres)
-    warnings = list(detection.warnings)
-    if len(spheres) == 4:
-        order, fre = order_to_tool(
-            np.array([sphere.centre for sphere in spheres]), tool_marker_geometry(arguments.tool)
-        )
-        spheres = [spheres[i] for i in order]
-        if fre > 1.0:
-            warnings.append(
-                f"the sphere centres do not match NDI tool {arguments.tool}'s geometry (FRE {fre:.2f} mm); check --tool"
-            )
     if _suffix(arguments.out) in POINT_SUFFIXES:
         write_points(arguments.out, points)
     else:

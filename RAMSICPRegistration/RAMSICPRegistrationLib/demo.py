@@ -16,8 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .ct_phantom import make_ct_phantom, signed_distance_to_mesh
-from .ct_segmentation import bone_surface, segment_bone
-from .marker_spheres import detect_marker_spheres, order_to_tool
+from .ct_pipeline import process_ct
 from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
 from .registration import DEFAULT_SCALE
 from .surface_files import read_surface_mesh
@@ -205,23 +204,12 @@ def ct_image_side(patient, vertices, triangles, seed, report):
     report("CT phantom", 0, 3)
     volume, truth = make_ct_phantom(patient, vertices, triangles, seed=seed)
     seconds["ct_phantom"] = time.perf_counter() - clock
-    report("segmentation and IPC", 1, 3)
-    clock = time.perf_counter()
-    segmentation = segment_bone(volume)
-    surface = bone_surface(volume, segmentation)
-    seconds["segmentation_and_ipc"] = time.perf_counter() - clock
-    report("marker spheres", 2, 3)
-    clock = time.perf_counter()
-    detection = detect_marker_spheres(volume, segmentation)
-    centres = detection.ok_centres
-    if len(centres) != 4:
-        raise RuntimeError(
-            "the demo's CT phantom did not give 4 clean marker spheres: " + "; ".join(detection.warnings)
-        )
-    order, _ = order_to_tool(centres, patient.markers_reference)
-    automatic = centres[order]
-    seconds["marker_spheres"] = time.perf_counter() - clock
-    report("marker spheres", 3, 3)
+    image = process_ct(volume, tool_markers=patient.markers_reference)
+    seconds.update(image.seconds)
+    report("image side", 3, 3)
+    if len(image.spheres) != 4 or any(sphere.status != "ok" for sphere in image.spheres):
+        raise RuntimeError("the demo's CT phantom did not give 4 clean marker spheres: " + "; ".join(image.warnings))
+    automatic, surface = image.centres, image.surface
     offsets = signed_distance_to_mesh(surface.points, vertices, triangles, np.random.default_rng(seed))
     return ImageSide(
         ipc=surface.points,
@@ -230,7 +218,7 @@ def ct_image_side(patient, vertices, triangles, seed, report):
         marker_errors_mm=np.linalg.norm(automatic - truth.marker_centres, axis=1),
         seconds=seconds,
         ipc_offset_mm=float(np.median(offsets)),
-        warnings=detection.warnings,
+        warnings=image.warnings,
     )
 
 

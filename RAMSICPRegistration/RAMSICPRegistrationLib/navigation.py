@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from . import mrml_nodes
-from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, segment_bone
-from .marker_spheres import detect_marker_spheres, order_to_tool
+from .ct_pipeline import process_ct
+from .ct_segmentation import DEFAULT_THRESHOLD_HU
 from .package_data import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from .pivot import pivot_calibration
 from .point_files import write_points
@@ -115,14 +115,8 @@ class NavigationLogic:
     def process_ct(self, volume_node, threshold_hu=DEFAULT_THRESHOLD_HU, tool_id=DEFAULT_REFERENCE_TOOL):
         """CT volume node -> segmentation node, IPC model node and marker-centre fiducials (image, tool order)."""
         volume = load_volume(volume_node)
-        segmentation = segment_bone(volume, threshold_hu)
-        surface = bone_surface(volume, segmentation)
-        detection = detect_marker_spheres(volume, segmentation)
-        spheres = list(detection.spheres)
-        warnings = list(detection.warnings)
-        if len(spheres) == len(tool_marker_geometry(tool_id)):
-            order, _ = order_to_tool(np.array([s.centre for s in spheres]), tool_marker_geometry(tool_id))
-            spheres = [spheres[i] for i in order]
+        image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id))
+        segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, [s.label for s in spheres])
         ipc = mrml_nodes.model_node(self.scene, surface.points, surface.triangles, name="IPC")
         markers = mrml_nodes.fiducial_node(
@@ -140,7 +134,7 @@ class NavigationLogic:
             ("Segmentation", segmentation_node),
         ):
             parameters.SetNodeReferenceID(role, node.GetID())
-        return ImageSideNodes(segmentation_node, ipc, markers, tuple(warnings))
+        return ImageSideNodes(segmentation_node, ipc, markers, image.warnings)
 
     # -- 2. tracker ----------------------------------------------------------------------------------------
     def build_hierarchy(self, probe_tip_to_probe, probe_to_reference, reference_to_image):
