@@ -1,6 +1,9 @@
-"""Qt-free tracker feed of RAMSICP Navigator: NDI driver, simulator, OpenIGTLink server and receiver.
+"""Qt-free tracker feed of RAMSICP Navigator: NDI tracker -> OpenIGTLink (PLUS names) -> Slicer transform nodes.
 
-The tracking chain (NDI Combined API -> OpenIGTLink with PLUS names -> Slicer transform nodes) lands here; the
-frame arithmetic it relies on (paper eq. 2, ``ProbeToReference = inv(ReferenceToTracker) @ ProbeToTracker``)
-is ``RAMSICPRegistrationLib.transforms.probe_to_reference``.
+In place so far: the two wire formats, each with its CRC checked both ways and malformed input refused with
+a reason: ``igtl_messages`` (OpenIGTLink header versions 1 and 2, TRANSFORM, STATUS, metadata) and
+``ndi_protocol`` (NDI Combined API framing, ERROR meanings, the TX reply). The NDI driver, the Vega simulator,
+the PLUS-compatible server and the Slicer receiver build on them. The frame arithmetic of paper eq. 2,
+``ProbeToReference = inv(ReferenceToTracker) @ ProbeToTracker``, is
+``RAMSICPRegistrationLib.transforms.probe_to_reference``.
 """
