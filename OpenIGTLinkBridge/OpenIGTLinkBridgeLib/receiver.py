@@ -1,0 +1,183 @@
+"""The OpenIGTLink receiver under the OpenIGTLinkBridge widget: transforms into MRML nodes, tool status, eq. 2.
+
+``poll()`` (called from the widget's timer, or by tests) connects or reconnects, reads what has arrived without
+blocking, writes each TRANSFORM into the linear transform node of the same name (created once, then reused, so
+nodes that SlicerOpenIGTLink already feeds are shared), keeps ``ProbeToReference = inv(ReferenceToTracker) @
+ProbeToTracker`` (paper eq. 2) up to date, and tracks each tool's status: valid, missing (flagged invalid by
+the server), stale (no update for ``stale_after_s``) or disconnected. Malformed messages are logged and skipped;
+a broken stream (bad header) resets the connection.
+"""
+
+import logging
+import socket
+import time
+
+import numpy as np
+
+from . import igtl_messages as igtl
+
+logger = logging.getLogger(__name__)
+
+STALE_AFTER_S = 1.0
+RECONNECT_INTERVAL_S = 0.5
+
+
+class TrackerReceiver:
+    """OpenIGTLink client writing into a vtkMRMLScene.
+
+    Args:
+        scene: the MRML scene (``slicer.mrmlScene`` in Slicer).
+        reference_name, probe_name: device names of the reference body and the probe (PLUS: ...ToTracker).
+        probe_to_reference_name: the node eq. 2 keeps up to date.
+        clock: monotonic clock (s), injectable for tests.
+    """
+
+    def __init__(
+        self,
+        scene,
+        host="127.0.0.1",
+        port=18944,
+        reference_name="ReferenceToTracker",
+        probe_name="ProbeToTracker",
+        probe_to_reference_name="ProbeToReference",
+        stale_after_s=STALE_AFTER_S,
+        clock=time.monotonic,
+    ):
+        self.scene, self.host, self.port = scene, host, port
+        self.reference_name, self.probe_name = reference_name, probe_name
+        self.probe_to_reference_name = probe_to_reference_name
+        self.stale_after_s, self.clock = stale_after_s, clock
+        self.socket = None
+        self.buffer = bytearray()
+        self.last_update = {}
+        self.valid = {}
+        self.matrices = {}
+        self.received = {}
+        self.skipped = 0
+        self.last_status = None
+        self._next_attempt = 0.0
+        self.on_update = None  # optional callable(device, matrix) after each valid transform
+
+    # -- connection ----------------------------------------------------------------------------------------
+    @property
+    def connected(self):
+        return self.socket is not None
+
+    def _connect(self):
+        if self.clock() < self._next_attempt:
+            return False
+        self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=0.5)
+        except OSError:
+            return False
+        sock.setblocking(False)
+        self.socket, self.buffer = sock, bytearray()
+        logger.info("connected to the OpenIGTLink server at %s:%d", self.host, self.port)
+        return True
+
+    def _reset(self, why):
+        logger.warning("OpenIGTLink connection reset: %s", why)
+        if self.socket is not None:
+            self.socket.close()
+        self.socket, self.buffer = None, bytearray()
+
+    def close(self):
+        if self.socket is not None:
+            self.socket.close()
+            self.socket = None
+
+    # -- polling -------------------------------------------------------------------------------------------
+    def poll(self):
+        """Read everything that has arrived and apply it; returns the number of messages applied."""
+        if self.socket is None and not self._connect():
+            return 0
+        while True:
+            try:
+                chunk = self.socket.recv(1 << 16)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as error:
+                self._reset(f"read failed ({error})")
+                return 0
+            if not chunk:
+                self._reset("the server closed the connection")
+                return 0
+            self.buffer += chunk
+        return self._apply_buffered()
+
+    def _apply_buffered(self):
+        applied = 0
+        while len(self.buffer) >= igtl.HEADER_SIZE:
+            try:
+                header = igtl.decode_header(bytes(self.buffer[: igtl.HEADER_SIZE]))
+            except igtl.MessageError as error:
+                self.skipped += 1
+                self._reset(f"unreadable header ({error})")  # the stream cannot be re-synchronised
+                return applied
+            end = igtl.HEADER_SIZE + header.body_size
+            if len(self.buffer) < end:
+                break  # the rest of the body is still on its way
+            body = bytes(self.buffer[igtl.HEADER_SIZE : end])
+            del self.buffer[:end]
+            try:
+                message = igtl.decode_body(header, body)
+            except igtl.MessageError as error:
+                self.skipped += 1
+                logger.warning("skipped a message: %s", error)
+                continue
+            self._apply(message)
+            applied += 1
+        return applied
+
+    def _apply(self, message):
+        if message.type == "STATUS":
+            self.last_status = message.content
+            return
+        device = message.device
+        self.received[device] = self.received.get(device, 0) + 1
+        self.last_update[device] = self.clock()
+        valid = message.metadata.get("TransformValid", "true").lower() != "false"
+        self.valid[device] = valid
+        if not valid:
+            return
+        self.matrices[device] = message.content
+        _write(self._node(device), message.content)
+        if (
+            device in (self.reference_name, self.probe_name)
+            and self._fresh(self.reference_name)
+            and self._fresh(self.probe_name)
+        ):
+            probe_to_reference = np.linalg.inv(self.matrices[self.reference_name]) @ self.matrices[self.probe_name]
+            _write(self._node(self.probe_to_reference_name), probe_to_reference)
+        if self.on_update is not None:
+            self.on_update(device, message.content)
+
+    def _node(self, name):
+        node = self.scene.GetFirstNodeByName(name)
+        if node is None or not node.IsA("vtkMRMLTransformNode"):
+            node = self.scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", name)
+        return node
+
+    def _fresh(self, device):
+        return self.valid.get(device, False) and self.clock() - self.last_update.get(device, -1e9) <= self.stale_after_s
+
+    def status(self, device):
+        """'disconnected', 'never seen', 'stale', 'missing' or 'valid'."""
+        if self.socket is None:
+            return "disconnected"
+        if device not in self.last_update:
+            return "never seen"
+        if self.clock() - self.last_update[device] > self.stale_after_s:
+            return "stale"
+        return "valid" if self.valid.get(device) else "missing"
+
+
+def _write(node, matrix):
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    vtk_matrix = vtkMatrix4x4()
+    for row in range(4):
+        for column in range(4):
+            vtk_matrix.SetElement(row, column, float(matrix[row][column]))
+    node.SetMatrixTransformToParent(vtk_matrix)

@@ -1,0 +1,211 @@
+"""The live tracker chain on loopback: Vega simulator -> NDI driver -> OpenIGTLink server -> receiver -> MRML."""
+
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from OpenIGTLinkBridgeLib import igtl_messages as igtl
+from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
+from OpenIGTLinkBridgeLib.live_scenario import PROBE_TIP_MM, demo_simulator
+from OpenIGTLinkBridgeLib.ndi_driver import NDITracker, TrackerConnectionError
+from OpenIGTLinkBridgeLib.ndi_protocol import NDICommandError, crc16
+from RAMSICPRegistrationLib.package_data import DATA_DIR
+
+from conftest import headless_scene
+
+slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
+from OpenIGTLinkBridgeLib.receiver import TrackerReceiver  # noqa: E402
+from RAMSICPRegistrationLib.navigation import matrix_of  # noqa: E402
+
+POINTS = np.array([[0.0, 0.0, 0.0], [12.0, -3.0, 5.0], [-4.0, 9.0, 2.0], [7.0, 7.0, -6.0]])
+
+
+def _tracker(simulator):
+    tracker = NDITracker("127.0.0.1", simulator.address[1], timeout_s=1.0).connect()
+    tracker.load_tool(DATA_DIR / "8700339.rom", "Reference")
+    tracker.load_tool(DATA_DIR / "8700340.rom", "Probe")
+    tracker.start()
+    return tracker
+
+
+@pytest.fixture
+def chain(request):
+    """Simulator, server and receiver, torn down after the test; options via indirect parametrisation."""
+    options = getattr(request, "param", {})
+    simulator, script = demo_simulator(POINTS, **options.get("simulator", {}))
+    simulator.start()
+    server = TrackerServer(lambda: _tracker(simulator), port=0, header_version=options.get("version", 1)).start()
+    receiver = TrackerReceiver(headless_scene(), port=server.address[1], stale_after_s=options.get("stale", 1.0))
+    yield simulator, script, server, receiver
+    receiver.close()
+    server.stop()
+    simulator.stop()
+
+
+def _run(receiver, seconds):
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        receiver.poll()
+        time.sleep(0.005)
+
+
+def test_driver_reads_the_simulated_poses():
+    simulator, script = demo_simulator(POINTS)
+    simulator.start()
+    try:
+        tracker = _tracker(simulator)
+        time.sleep(0.4)  # the script's first dwell
+        poses, system_status = tracker.poses()
+        assert system_status == 0 and set(poses) == {"Reference", "Probe"}
+        np.testing.assert_allclose(poses["Reference"].matrix(), script.reference_to_tracker, atol=1e-3)
+        assert poses["Probe"].state == "valid" and poses["Probe"].frame > 0
+        tracker.close()
+    finally:
+        simulator.stop()
+
+
+def test_driver_errors_have_ndi_meanings_and_timeouts():
+    simulator, _ = demo_simulator(POINTS)
+    simulator.start()
+    try:
+        tracker = NDITracker("127.0.0.1", simulator.address[1], timeout_s=1.0).connect()
+        with pytest.raises(NDICommandError) as error:
+            tracker.command("TX", "0001")  # before TSTART
+        assert error.value.code == 0x0C and "current operating mode" in str(error.value)
+        tracker.close()  # like a real tracker, the simulator serves one host at a time
+        raw = socket.create_connection(simulator.address[:2], timeout=1.0)
+        raw.sendall(b"INIT:0000\r")  # a wrong CRC
+        reply = raw.recv(100)
+        assert reply.startswith(b"ERROR04") and int(reply[7:11], 16) == crc16("ERROR04")
+        raw.close()
+    finally:
+        simulator.stop()
+    with pytest.raises(TrackerConnectionError, match="cannot reach the NDI tracker"):
+        NDITracker("127.0.0.1", _free_port(), timeout_s=0.5).connect()
+    silent = socket.create_server(("127.0.0.1", 0))
+    start = time.monotonic()
+    with pytest.raises(TrackerConnectionError, match="did not answer 'INIT:' within 0.3 s"):
+        NDITracker("127.0.0.1", silent.getsockname()[1], timeout_s=0.3).connect()
+    assert time.monotonic() - start < 2.0
+    silent.close()
+
+
+def _free_port():
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_chain_keeps_probe_to_reference_and_drops_no_frame(chain):
+    simulator, script, server, receiver = chain
+    _run(receiver, 1.2)
+    counts = receiver.received
+    assert counts["ProbeToTracker"] >= 55 and counts["ReferenceToTracker"] >= 55  # 60 Hz for over a second
+    assert abs(counts["ProbeToTracker"] - server.frames_sent) <= 2  # every frame sent arrived (2 in flight)
+    assert receiver.status("ProbeToTracker") == "valid" and receiver.last_status.text == "tracker connected"
+    probe_to_reference = matrix_of(receiver.scene.GetFirstNodeByName("ProbeToReference"))
+    tip = probe_to_reference[:3, :3] @ PROBE_TIP_MM + probe_to_reference[:3, 3]
+    assert np.min(np.linalg.norm(POINTS - tip, axis=1)) < 0.01 or tip[2] > 0.1  # on a point, or lifted between
+
+
+@pytest.mark.parametrize("chain", [{"version": 2, "simulator": {"dropout": lambda t: 0.5 < t < 1.5}}], indirect=True)
+def test_version_2_flags_a_missing_probe(chain):
+    _, _, _, receiver = chain
+    _run(receiver, 1.0)
+    assert receiver.status("ProbeToTracker") == "missing" and receiver.status("ReferenceToTracker") == "valid"
+    _run(receiver, 1.0)
+    assert receiver.status("ProbeToTracker") == "valid"
+
+
+@pytest.mark.parametrize("chain", [{"stale": 0.2, "simulator": {"out_of_volume": lambda t: t > 0.5}}], indirect=True)
+def test_version_1_sends_no_invalid_pose_so_the_probe_goes_stale(chain):
+    _, _, _, receiver = chain
+    _run(receiver, 1.2)
+    assert receiver.status("ProbeToTracker") == "stale" and receiver.status("ReferenceToTracker") == "valid"
+
+
+@pytest.mark.parametrize("chain", [{"simulator": {"disconnect_after_s": 0.4}}], indirect=True)
+def test_tracker_disconnect_is_reported_and_tracking_resumes(chain):
+    _, _, server, receiver = chain
+    statuses = []
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        receiver.poll()
+        if receiver.last_status is not None and (not statuses or statuses[-1] != receiver.last_status.text):
+            statuses.append(receiver.last_status.text)
+        time.sleep(0.005)
+    assert any("not answering" in text for text in statuses)
+    assert statuses[-1] == "tracker connected"
+    before = receiver.received["ProbeToTracker"]
+    _run(receiver, 0.3)
+    assert receiver.received["ProbeToTracker"] > before
+
+
+def test_a_client_that_disappears_does_not_stall_the_others(chain):
+    _, _, server, receiver = chain
+    rude = socket.create_connection(server.address[:2])
+    _run(receiver, 0.3)
+    rude.close()
+    before = receiver.received.get("ProbeToTracker", 0)
+    _run(receiver, 0.5)
+    assert receiver.received["ProbeToTracker"] - before >= 25
+
+
+class _ScriptedServer:
+    """A raw OpenIGTLink peer that sends given byte chunks to the first client, for malformed-input tests."""
+
+    def __init__(self, chunks):
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.chunks = chunks
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        client, _ = self.listener.accept()
+        for chunk in self.chunks:
+            client.sendall(chunk)
+            time.sleep(0.05)
+        time.sleep(0.5)
+        client.close()
+
+
+def test_receiver_skips_malformed_messages_and_keeps_the_connection():
+    pose = np.eye(4)
+    pose[:3, 3] = (1.0, 2.0, 3.0)
+    good = igtl.encode_transform("ReferenceToTracker", pose)
+    wrong_crc = good[:-1] + bytes([good[-1] ^ 1])
+    unknown = igtl.encode_transform("X", pose).replace(b"TRANSFORM\0\0\0", b"POINTCLOUD\0\0", 1)
+    later = pose.copy()
+    later[:3, 3] = (4.0, 5.0, 6.0)
+    final = igtl.encode_transform("ReferenceToTracker", later)
+    peer = _ScriptedServer([good, wrong_crc, unknown, final[:30], final[30:]])
+    receiver = TrackerReceiver(headless_scene(), port=peer.port)
+    _run(receiver, 0.6)
+    assert receiver.skipped == 2 and receiver.received["ReferenceToTracker"] == 2
+    np.testing.assert_allclose(matrix_of(receiver.scene.GetFirstNodeByName("ReferenceToTracker"))[:3, 3], (4, 5, 6))
+    receiver.close()
+
+
+def test_receiver_resets_on_a_broken_stream_and_reuses_existing_nodes():
+    oversized = bytearray(igtl.encode_transform("ReferenceToTracker", np.eye(4)))
+    oversized[42:50] = (1 << 40).to_bytes(8, "big")
+    peer = _ScriptedServer([bytes(oversized)])
+    scene = headless_scene()
+    existing = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToTracker")  # SlicerOpenIGTLink's
+    receiver = TrackerReceiver(scene, port=peer.port)
+    _run(receiver, 0.3)
+    assert receiver.skipped == 1 and receiver.status("ReferenceToTracker") == "disconnected"
+    assert scene.GetFirstNodeByName("ReferenceToTracker") is existing
+    receiver.close()
+
+
+def test_idle_receiver_uses_almost_no_cpu():
+    receiver = TrackerReceiver(headless_scene(), port=_free_port())
+    start_cpu, start = time.process_time(), time.monotonic()
+    while time.monotonic() - start < 1.0:
+        receiver.poll()  # nothing to connect to: it retries twice a second, no busy loop
+        time.sleep(0.02)  # the widget's timer period
+    assert (time.process_time() - start_cpu) / (time.monotonic() - start) < 0.05
