@@ -1,0 +1,117 @@
+"""Interoperability with the OpenIGTLink C++ library (Debian's libopenigtlink-dev, installed by .ci/run):
+our server to a C++ client and a C++ server to our receiver, matrices compared bit for bit (float32)."""
+
+import shutil
+import struct
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
+from OpenIGTLinkBridgeLib.ndi_protocol import ToolPose
+from OpenIGTLinkBridgeLib.ndi_simulator import matrix_to_quaternion
+
+from conftest import headless_scene
+
+SOURCES = Path(__file__).parent / "interop"
+HEADERS = Path("/usr/include/openigtlink")
+POSE = np.array([[0.36, 0.48, -0.8, 123.25], [-0.8, 0.6, 0.0, -45.5], [0.48, 0.64, 0.6, -1500.75], [0, 0, 0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def programs(tmp_path_factory):
+    if not (HEADERS / "igtlTransformMessage.h").is_file() or shutil.which("g++") is None:
+        pytest.skip(
+            "the OpenIGTLink C++ library is not installed: apt-get install libopenigtlink-dev g++ (.ci/run does)"
+        )
+    folder = tmp_path_factory.mktemp("igtl")
+    built = {}
+    for name in ("igtl_transform_client", "igtl_transform_server"):
+        built[name] = folder / name
+        subprocess.run(
+            ["g++", "-O1", "-o", str(built[name]), str(SOURCES / f"{name}.cxx"), f"-I{HEADERS}", "-lOpenIGTLink"],
+            check=True,
+            capture_output=True,
+        )
+    return built
+
+
+def _bits(values):
+    return [struct.unpack(">I", struct.pack(">f", value))[0] for value in values]
+
+
+class _FixedTracker:
+    """A tracker that always sees the probe at POSE (the pose travels exactly as NDI's TX would carry it)."""
+
+    def __init__(self):
+        self.pose = ToolPose(1, "valid", matrix_to_quaternion(POSE), tuple(POSE[:3, 3]), 0.1, 0x31, 1)
+
+    def poses(self):
+        return {"Probe": self.pose}, 0
+
+    def close(self):
+        pass
+
+
+def test_cpp_client_reads_our_transforms_bit_exactly(programs):
+    tracker = _FixedTracker()
+    server = TrackerServer(lambda: tracker, port=0).start()
+    try:
+        completed = subprocess.run(
+            [str(programs["igtl_transform_client"]), "127.0.0.1", str(server.address[1]), "3"],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=True,
+        )
+    finally:
+        server.stop()
+    lines = completed.stdout.split("\n")[:3]
+    expected = tracker.pose.matrix()
+    values = np.concatenate((expected[:3, :3].T.ravel(), expected[:3, 3]))  # column by column, then t
+    for line in lines:
+        device, *hexes = line.split()
+        assert device == "ProbeToTracker"
+        assert [int(h, 16) for h in hexes] == _bits(values)
+
+
+def test_our_receiver_reads_a_cpp_server_bit_exactly(programs):
+    from RAMSICPRegistrationLib.navigation import matrix_of
+
+    values = np.concatenate((POSE[:3, :3].T.ravel(), POSE[:3, 3]))
+    hexes = [f"{bits:08x}" for bits in _bits(values)]
+    port = _free_port()
+    process = subprocess.Popen(
+        [str(programs["igtl_transform_server"]), str(port), "ReferenceToTracker", *hexes],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout.readline().strip() == "listening"
+        from OpenIGTLinkBridgeLib.receiver import TrackerReceiver
+
+        receiver = TrackerReceiver(headless_scene(), port=port)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and not receiver.received:
+            receiver.poll()
+            time.sleep(0.01)
+        received = matrix_of(receiver.scene.GetFirstNodeByName("ReferenceToTracker"))
+        receiver.close()
+    finally:
+        process.wait(timeout=10)
+    expected = np.eye(4)
+    floats = np.array(values, dtype=np.float32).astype(np.float64)
+    expected[:3, :3] = floats[:9].reshape(3, 3).T
+    expected[:3, 3] = floats[9:]
+    np.testing.assert_array_equal(received, expected)
+
+
+def _free_port():
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
