@@ -209,3 +209,16 @@ def test_idle_receiver_uses_almost_no_cpu():
         receiver.poll()  # nothing to connect to: it retries twice a second, no busy loop
         time.sleep(0.02)  # the widget's timer period
     assert (time.process_time() - start_cpu) / (time.monotonic() - start) < 0.05
+
+
+def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index):
+    import dataclasses
+
+    from OpenIGTLinkBridgeLib.live_demo import run_live_demo
+
+    trial = tibia_patient.simulate_trial(np.random.default_rng(3), 1.0, probe_noise_mm=0.0)
+    trial = dataclasses.replace(trial, ppc=trial.ppc[::5])  # one touch per sub-area: 8 points
+    result = run_live_demo(slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, probe_noise_mm=0.25)
+    assert len(result.collected) == 8
+    assert np.sqrt(np.mean(result.collection_error_mm**2)) < 0.2  # 8-frame means of 0.25 mm noise
+    assert abs(result.live.tre_mm - result.reference.tre_mm) < 0.5

@@ -108,6 +108,12 @@ def _parser():
     )
     demo.add_argument("--json", type=Path, help="write every trial's TRE as JSON")
     demo.add_argument("--screenshot", type=Path, help="write a PNG of the last trial's registration (3-D view)")
+    demo.add_argument(
+        "--live",
+        action="store_true",
+        help="play one trial through the whole tracking chain: Vega simulator -> NDI driver -> "
+        "OpenIGTLink server -> receiver (MRML) -> point collection -> CR-RAMSICP",
+    )
     demo.set_defaults(run=_run_demo)
 
     ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
@@ -251,6 +257,8 @@ class _ProgressBar:
 
 
 def _run_demo(arguments):
+    if arguments.live:
+        return _run_live_demo(arguments)
     clock = time.perf_counter()
     report = run_demo(
         trials=arguments.trials,
@@ -308,6 +316,50 @@ def _format_demo(report, total_seconds):
         f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep",
     ]
     return "\n".join(lines)
+
+
+def _run_live_demo(arguments):
+    try:
+        import slicer
+    except ImportError:
+        raise ValueError(
+            "the live demo writes real MRML transform nodes: pip install 'ramsicp-navigator[live]' "
+            "(slicer-core, Python >= 3.10)"
+        ) from None
+    from OpenIGTLinkBridgeLib.live_demo import run_live_demo
+
+    from .demo import PROBE_NOISE_MM, ct_image_side
+
+    clock = time.perf_counter()
+    vertices, triangles = read_surface_mesh(bone_mesh_path(arguments.bone), untagged_space="RAS")
+    patient = VirtualPatient.from_mesh(
+        vertices,
+        triangles,
+        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
+        BONES[arguments.bone]["medial"],
+        seed=arguments.seed,
+    )
+    ipc = patient.ipc
+    if arguments.image_source == "ct":
+        ipc = ct_image_side(patient, vertices, triangles, arguments.seed, _ProgressBar()).ipc
+    fle = patient.marker_fle_for_cr_tre(PAPER_TRE_MM["CR"][0], seed=arguments.seed)
+    trial = patient.simulate_trial(np.random.default_rng(arguments.seed + 1), fle, probe_noise_mm=0.0)
+    result = run_live_demo(
+        slicer.vtkMRMLScene(), patient, SurfaceIndex(ipc), trial, PROBE_NOISE_MM, progress=_ProgressBar()
+    )
+    error = result.collection_error_mm
+    print(
+        f"live: {len(result.collected)} of {len(result.touched)} points collected from {result.frames} probe frames "
+        f"in {result.seconds:.1f} s (Vega simulator -> NDI driver -> OpenIGTLink -> MRML receiver)"
+    )
+    print(f"  collected points vs the true touches: {np.sqrt(np.mean(error**2)):.2f} mm RMS, {error.max():.2f} mm max")
+    for label, registered in (("live points", result.live), ("exact touches", result.reference)):
+        print(
+            f"  CR-RAMSICP on the {label:<14} L = {registered.scale:g}: TRE {registered.tre_mm:.2f} mm, "
+            f"probe points {registered.ppc_rms_mm:.2f} mm RMS"
+        )
+    print(f"  total {time.perf_counter() - clock:.1f} s")
+    return 0
 
 
 def _run_ipc(arguments):
