@@ -90,7 +90,7 @@ def run_live_demo(
     collector = DwellCollector()
     frames = 0
 
-    def on_update(device, matrix):
+    def on_update(device, matrix, timestamp_s):
         nonlocal frames
         if device != "ProbeToTracker" or "ReferenceToTracker" not in receiver.matrices:
             return

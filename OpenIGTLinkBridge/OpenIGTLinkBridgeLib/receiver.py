@@ -56,7 +56,7 @@ class TrackerReceiver:
         self.skipped = 0
         self.last_status = None
         self._next_attempt = 0.0
-        self.on_update = None  # optional callable(device, matrix) after each valid transform
+        self.on_update = None  # optional callable(device, matrix, timestamp_s) after each valid transform
 
     # -- connection ----------------------------------------------------------------------------------------
     @property
@@ -151,7 +151,7 @@ class TrackerReceiver:
             probe_to_reference = np.linalg.inv(self.matrices[self.reference_name]) @ self.matrices[self.probe_name]
             _write(self._node(self.probe_to_reference_name), probe_to_reference)
         if self.on_update is not None:
-            self.on_update(device, message.content)
+            self.on_update(device, message.content, message.timestamp_s)
 
     def _node(self, name):
         node = self.scene.GetFirstNodeByName(name)
