@@ -222,3 +222,44 @@ def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_i
     assert len(result.collected) == 8
     assert np.sqrt(np.mean(result.collection_error_mm**2)) < 0.2  # 8-frame means of 0.25 mm noise
     assert abs(result.live.tre_mm - result.reference.tre_mm) < 0.5
+
+
+def test_scikit_surgery_nditracker_reads_the_simulator_process(tmp_path):
+    """The simulator must be its own process here: ndicapi's PVWR holds the GIL while it waits for replies."""
+    import shutil
+    import subprocess
+    import sys
+
+    pytest.importorskip("sksurgerynditracker", reason="scikit-surgerynditracker does not install here")
+    if shutil.which("ping") is None:
+        pytest.skip("scikit-surgerynditracker pings a network tracker first; install iputils-ping")
+    from sksurgerynditracker.nditracker import NDITracker as SksTracker
+
+    port = _free_port()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "OpenIGTLinkBridgeLib.ndi_simulator", "--port", str(port)],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "listening" in process.stderr.readline()
+        tracker = SksTracker(
+            {
+                "tracker type": "vega",
+                "ip address": "127.0.0.1",
+                "port": port,
+                "romfiles": [str(DATA_DIR / "8700339.rom"), str(DATA_DIR / "8700340.rom")],
+            }
+        )
+        tracker.start_tracking()
+        time.sleep(0.3)
+        handles, _, frames, matrices, quality = tracker.get_frame()
+        tracker.stop_tracking()
+        tracker.close()
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+    assert list(handles) == [1, 2] and frames[0] > 0
+    expected = np.eye(4)
+    expected[:3, 3] = (0.0, 0.0, -1500.0)  # the simulator process's reference body
+    np.testing.assert_allclose(matrices[0], expected, atol=1e-3)

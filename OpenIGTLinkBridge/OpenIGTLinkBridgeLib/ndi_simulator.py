@@ -147,7 +147,18 @@ class VegaSimulator:
         if name == "APIREV":
             return API_REVISION, tracking_since
         if name == "VER":
-            return "Vega simulator (RAMSICP Navigator)\nCombined API " + API_REVISION, tracking_since
+            # The freeze tag of a Vega whose firmware answers TX: clients that choose TX or BX by it pick TX.
+            return "Vega simulator (RAMSICP Navigator)\nFreeze Tag: Polaris Vega 008\nCombined API " + API_REVISION, (
+                tracking_since
+            )
+        if name == "PHSR":
+            return self._port_search(arguments, ports), tracking_since
+        if name == "PHF":
+            try:
+                ports.pop(int(arguments[:2], 16), None)
+            except ValueError:
+                return "ERROR07", tracking_since
+            return "OKAY", tracking_since
         if name == "PHRQ":
             handle = len(ports) + 1
             ports[handle] = _Port()
@@ -163,6 +174,23 @@ class VegaSimulator:
                 return "ERROR0C", tracking_since
             return self._tx(ports, tracking_since), tracking_since
         return "ERROR01", tracking_since
+
+    @staticmethod
+    def _port_search(arguments, ports):
+        """PHSR: 00 all handles, 01 to be freed (none), 02 not initialised, 03 initialised but not enabled."""
+        kind = arguments[:2] or "00"
+        wanted = {
+            "00": lambda port: True,
+            "01": lambda port: False,
+            "02": lambda port: not port.initialized,
+            "03": lambda port: port.initialized and not port.enabled,
+            "04": lambda port: port.enabled,
+        }.get(kind)
+        if wanted is None:
+            return "ERROR07"
+        found = [(handle, port) for handle, port in sorted(ports.items()) if wanted(port)]
+        status = lambda port: 0x001 | (0x010 if port.initialized else 0) | (0x020 if port.enabled else 0)  # noqa: E731
+        return f"{len(found):02X}" + "".join(f"{handle:02X}{status(port):03X}" for handle, port in found)
 
     def _port_command(self, name, arguments, ports, tracking_since):
         try:
