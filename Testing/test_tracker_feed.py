@@ -263,3 +263,19 @@ def test_scikit_surgery_nditracker_reads_the_simulator_process(tmp_path):
     expected = np.eye(4)
     expected[:3, 3] = (0.0, 0.0, -1500.0)  # the simulator process's reference body
     np.testing.assert_allclose(matrices[0], expected, atol=1e-3)
+
+
+def test_idle_server_uses_almost_no_cpu():
+    """No tracker to talk to and no client: the server waits (select, back-off), it does not spin."""
+
+    def unreachable():
+        raise TrackerConnectionError("no tracker on this test bench")
+
+    server = TrackerServer(unreachable, port=0).start()
+    try:
+        time.sleep(0.3)
+        start_cpu, start = time.process_time(), time.monotonic()
+        time.sleep(1.5)
+        assert (time.process_time() - start_cpu) / (time.monotonic() - start) < 0.05
+    finally:
+        server.stop()
