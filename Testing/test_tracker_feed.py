@@ -279,3 +279,35 @@ def test_idle_server_uses_almost_no_cpu():
         assert (time.process_time() - start_cpu) / (time.monotonic() - start) < 0.05
     finally:
         server.stop()
+
+
+def test_tracker_server_command_streams_the_simulator(tmp_path):
+    import subprocess
+    import sys
+
+    port = _free_port()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "OpenIGTLinkBridgeLib.igtl_server", "--simulate", "--port", str(port)],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while "serving OpenIGTLink" not in process.stderr.readline():
+            assert time.monotonic() < deadline and process.poll() is None
+        client = socket.create_connection(("127.0.0.1", port), timeout=5)
+        data = b""
+        while len(data) < 3 * (igtl.HEADER_SIZE + 48):
+            data += client.recv(65536)
+        client.close()
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+    devices = set()
+    while len(data) >= igtl.HEADER_SIZE:
+        header = igtl.decode_header(data[: igtl.HEADER_SIZE])
+        if len(data) < igtl.HEADER_SIZE + header.body_size:
+            break
+        devices.add(igtl.decode_body(header, data[igtl.HEADER_SIZE : igtl.HEADER_SIZE + header.body_size]).device)
+        data = data[igtl.HEADER_SIZE + header.body_size :]
+    assert {"ProbeToTracker", "ReferenceToTracker"} <= devices

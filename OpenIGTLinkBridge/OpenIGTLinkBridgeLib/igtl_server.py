@@ -225,7 +225,8 @@ def main(argv=None):
     if arguments.simulate:
         from .live_scenario import demo_simulator
 
-        simulator = demo_simulator().start()
+        simulator, _ = demo_simulator()
+        simulator.start()
         host, port = simulator.address[0], simulator.address[1]
     elif arguments.ndi:
         host, _, port_text = arguments.ndi.partition(":")
