@@ -209,6 +209,8 @@ def main(argv=None):
     parser.add_argument("--port", type=int, default=DEFAULT_PORT)
     parser.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, help="frames per second (default 60)")
     parser.add_argument("--header-version", type=int, choices=(1, 2), default=1)
+    parser.add_argument("--probe-name", default=DEFAULT_NAMES["Probe"], help="device name of the probe's pose")
+    parser.add_argument("--reference-name", default=DEFAULT_NAMES["Reference"], help="device name of the reference's")
     parser.add_argument("--reference-rom", help="reference body .rom (default NDI 8700339)")
     parser.add_argument("--probe-rom", help="probe .rom (default NDI 8700340)")
     arguments = parser.parse_args(argv)
@@ -239,8 +241,9 @@ def main(argv=None):
         tracker.start()
         return tracker
 
+    names = {"Probe": arguments.probe_name, "Reference": arguments.reference_name}
     server = TrackerServer(
-        connect, arguments.host, arguments.port, arguments.rate, header_version=arguments.header_version
+        connect, arguments.host, arguments.port, arguments.rate, names=names, header_version=arguments.header_version
     )
     logger.info("serving OpenIGTLink on %s:%d", *server.address[:2])
     try:
