@@ -110,20 +110,12 @@ class OpenIGTLinkBridgeTest(ScriptedLoadableModuleTest):
 
         from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
         from OpenIGTLinkBridgeLib.live_scenario import demo_simulator
-        from OpenIGTLinkBridgeLib.ndi_driver import NDITracker
-        from RAMSICPRegistrationLib.package_data import DATA_DIR
+        from OpenIGTLinkBridgeLib.ndi_driver import open_tracker
 
         simulator, script = demo_simulator(np.zeros((2, 3)))
         simulator.start()
 
-        def connect():
-            tracker = NDITracker("127.0.0.1", simulator.address[1]).connect()
-            tracker.load_tool(DATA_DIR / "8700339.rom", "Reference")
-            tracker.load_tool(DATA_DIR / "8700340.rom", "Probe")
-            tracker.start()
-            return tracker
-
-        server = TrackerServer(connect, port=0).start()
+        server = TrackerServer(lambda: open_tracker("127.0.0.1", simulator.address[1]), port=0).start()
         logic = OpenIGTLinkBridgeLogic()
         logic.connect("127.0.0.1", server.address[1])
         end = time.monotonic() + 1.0

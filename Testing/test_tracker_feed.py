@@ -10,7 +10,7 @@ import pytest
 from OpenIGTLinkBridgeLib import igtl_messages as igtl
 from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
 from OpenIGTLinkBridgeLib.live_scenario import PROBE_TIP_MM, demo_simulator
-from OpenIGTLinkBridgeLib.ndi_driver import NDITracker, TrackerConnectionError
+from OpenIGTLinkBridgeLib.ndi_driver import NDITracker, TrackerConnectionError, open_tracker
 from OpenIGTLinkBridgeLib.ndi_protocol import NDICommandError, crc16
 from RAMSICPRegistrationLib.package_data import DATA_DIR
 
@@ -24,11 +24,7 @@ POINTS = np.array([[0.0, 0.0, 0.0], [12.0, -3.0, 5.0], [-4.0, 9.0, 2.0], [7.0, 7
 
 
 def _tracker(simulator):
-    tracker = NDITracker("127.0.0.1", simulator.address[1], timeout_s=1.0).connect()
-    tracker.load_tool(DATA_DIR / "8700339.rom", "Reference")
-    tracker.load_tool(DATA_DIR / "8700340.rom", "Probe")
-    tracker.start()
-    return tracker
+    return open_tracker("127.0.0.1", simulator.address[1], timeout_s=1.0)
 
 
 @pytest.fixture

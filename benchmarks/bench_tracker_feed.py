@@ -22,9 +22,8 @@ import slicer
 from OpenIGTLinkBridgeLib import igtl_messages as igtl
 from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
 from OpenIGTLinkBridgeLib.live_scenario import demo_simulator
-from OpenIGTLinkBridgeLib.ndi_driver import NDITracker
+from OpenIGTLinkBridgeLib.ndi_driver import open_tracker
 from OpenIGTLinkBridgeLib.receiver import TrackerReceiver
-from RAMSICPRegistrationLib.package_data import DATA_DIR
 
 
 def baseline_client(port, stop, latencies):
@@ -55,14 +54,7 @@ def run(rate_hz, seconds):
     simulator, _ = demo_simulator(np.zeros((2, 3)), rate_hz=rate_hz)
     simulator.start()
 
-    def connect():
-        tracker = NDITracker("127.0.0.1", simulator.address[1]).connect()
-        tracker.load_tool(DATA_DIR / "8700339.rom", "Reference")
-        tracker.load_tool(DATA_DIR / "8700340.rom", "Probe")
-        tracker.start()
-        return tracker
-
-    server = TrackerServer(connect, port=0, rate_hz=rate_hz).start()
+    server = TrackerServer(lambda: open_tracker("127.0.0.1", simulator.address[1]), port=0, rate_hz=rate_hz).start()
     stop = threading.Event()
     baseline = []
     thread = threading.Thread(target=baseline_client, args=(server.address[1], stop, baseline), daemon=True)

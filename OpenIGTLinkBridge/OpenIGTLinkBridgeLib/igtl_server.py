@@ -217,13 +217,13 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
     from RAMSICPRegistrationLib.package_data import DATA_DIR
 
-    from .ndi_driver import NDITracker
+    from .ndi_driver import open_tracker
 
     roms = {
         "Reference": arguments.reference_rom or DATA_DIR / "8700339.rom",
         "Probe": arguments.probe_rom or DATA_DIR / "8700340.rom",
     }
-    simulator = None
+    simulator, host, port = None, None, 8765
     if arguments.simulate:
         from .live_scenario import demo_simulator
 
@@ -235,11 +235,7 @@ def main(argv=None):
         port = int(port_text or 8765)
 
     def connect():
-        tracker = (NDITracker(serial_device=arguments.serial) if arguments.serial else NDITracker(host, port)).connect()
-        for name, rom in roms.items():
-            tracker.load_tool(rom, name)
-        tracker.start()
-        return tracker
+        return open_tracker(host, port, arguments.serial, roms)
 
     names = {"Probe": arguments.probe_name, "Reference": arguments.reference_name}
     server = TrackerServer(

@@ -14,7 +14,7 @@ import numpy as np
 
 from .igtl_server import TrackerServer
 from .live_scenario import PROBE_TIP_MM, demo_simulator
-from .ndi_driver import NDITracker
+from .ndi_driver import open_tracker
 
 logger = logging.getLogger(__name__)
 
@@ -69,7 +69,6 @@ def run_live_demo(
             (reference coordinates) the probe touches and whose markers and targets the registration uses.
         probe_noise_mm: RMS 3-D noise of the tip in the reference frame (split between the two tools).
     """
-    from RAMSICPRegistrationLib.package_data import DATA_DIR
     from RAMSICPRegistrationLib.registration import register
 
     from .receiver import TrackerReceiver
@@ -78,14 +77,9 @@ def run_live_demo(
     simulator, script = demo_simulator(touched, dwell_s=dwell_s, move_s=move_s, noise_mm=probe_noise_mm / np.sqrt(2))
     simulator.start()
 
-    def connect():
-        tracker = NDITracker("127.0.0.1", simulator.address[1]).connect()
-        tracker.load_tool(DATA_DIR / "8700339.rom", "Reference")
-        tracker.load_tool(DATA_DIR / "8700340.rom", "Probe")
-        tracker.start()
-        return tracker
-
-    server = TrackerServer(connect, port=0, header_version=header_version).start()
+    server = TrackerServer(
+        lambda: open_tracker("127.0.0.1", simulator.address[1]), port=0, header_version=header_version
+    ).start()
     receiver = TrackerReceiver(scene, port=server.address[1])
     collector = DwellCollector()
     frames = 0

@@ -150,6 +150,23 @@ class NDITracker:
                 self.link = None
 
 
+def open_tracker(host=None, port=8765, serial_device=None, roms=None, timeout_s=DEFAULT_TIMEOUT_S):
+    """Connect, load the tools and start tracking; returns the NDITracker.
+
+    ``roms``: tool name -> .rom path or bytes; by default the reference body NDI 8700339 as 'Reference' and
+    the probe NDI 8700340 as 'Probe' (shipped with the package).
+    """
+    if roms is None:
+        from RAMSICPRegistrationLib.package_data import DATA_DIR
+
+        roms = {"Reference": DATA_DIR / "8700339.rom", "Probe": DATA_DIR / "8700340.rom"}
+    tracker = NDITracker(host, port, serial_device, timeout_s).connect()
+    for name, rom in roms.items():
+        tracker.load_tool(rom, name)
+    tracker.start()
+    return tracker
+
+
 def wait_for(predicate, timeout_s=5.0, interval_s=0.01):
     """Poll ``predicate`` until it is true or ``timeout_s`` passes; returns its last value."""
     end = time.monotonic() + timeout_s
