@@ -307,3 +307,51 @@ def test_tracker_server_command_streams_the_simulator(tmp_path):
         devices.add(igtl.decode_body(header, data[igtl.HEADER_SIZE : igtl.HEADER_SIZE + header.body_size]).device)
         data = data[igtl.HEADER_SIZE + header.body_size :]
     assert {"ProbeToTracker", "ReferenceToTracker"} <= devices
+
+
+def test_driver_over_a_serial_line():
+    """A pseudo-terminal stands in for the Polaris cable; a bridge carries its bytes to the simulator."""
+    import os
+    import tty
+
+    simulator, script = demo_simulator(POINTS)
+    simulator.start()
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    link = socket.create_connection(simulator.address[:2])
+    stop = threading.Event()
+
+    def bridge():
+        link.settimeout(0.01)
+        while not stop.is_set():
+            try:
+                data = os.read(master, 4096) if _readable(master) else b""
+                if data:
+                    link.sendall(data)
+                os.write(master, link.recv(4096))
+            except (TimeoutError, socket.timeout):
+                continue
+            except OSError:
+                return
+
+    thread = threading.Thread(target=bridge, daemon=True)
+    thread.start()
+    try:
+        tracker = open_tracker(serial_device=os.ttyname(slave), timeout_s=2.0)
+        time.sleep(0.4)
+        poses, _ = tracker.poses()
+        np.testing.assert_allclose(poses["Reference"].matrix(), script.reference_to_tracker, atol=1e-3)
+        tracker.close()
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+        link.close()
+        os.close(master)
+        os.close(slave)
+        simulator.stop()
+
+
+def _readable(fd):
+    import select
+
+    return bool(select.select([fd], [], [], 0.01)[0])
