@@ -8,10 +8,9 @@ is checked, and ERROR replies become ``NDICommandError`` with NDI's meaning.
 
 import logging
 import socket
-import time
 from pathlib import Path
 
-from .ndi_protocol import NDIProtocolError, check_reply, frame_command, parse_tx
+from .ndi_protocol import check_reply, frame_command, parse_tx
 
 logger = logging.getLogger(__name__)
 
@@ -134,11 +133,7 @@ class NDITracker:
 
     def poses(self):
         """One TX: {tool name: ToolPose}, and the system status."""
-        reply = self.command("TX", "0001")
-        try:
-            entries, system_status = parse_tx(reply)
-        except NDIProtocolError:
-            raise
+        entries, system_status = parse_tx(self.command("TX", "0001"))
         by_handle = {pose.handle: pose for pose in entries}
         return {name: by_handle.get(handle) for name, handle in self.handles.items()}, system_status
 
@@ -165,13 +160,3 @@ def open_tracker(host=None, port=8765, serial_device=None, roms=None, timeout_s=
         tracker.load_tool(rom, name)
     tracker.start()
     return tracker
-
-
-def wait_for(predicate, timeout_s=5.0, interval_s=0.01):
-    """Poll ``predicate`` until it is true or ``timeout_s`` passes; returns its last value."""
-    end = time.monotonic() + timeout_s
-    value = predicate()
-    while not value and time.monotonic() < end:
-        time.sleep(interval_s)
-        value = predicate()
-    return value

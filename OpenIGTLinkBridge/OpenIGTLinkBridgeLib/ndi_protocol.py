@@ -53,7 +53,6 @@ ERROR_MEANINGS = {
 }
 
 PORT_STATUS_OUT_OF_VOLUME = 0x80  # bit 7 of the port status: the tool is outside the characterised volume
-PORT_STATUS_PARTIALLY_OUT = 0x100
 
 
 class NDIProtocolError(ValueError):
