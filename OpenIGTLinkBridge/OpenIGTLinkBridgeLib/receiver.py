@@ -8,7 +8,9 @@ the server), stale (no update for ``stale_after_s``) or disconnected. Malformed 
 a broken stream (bad header) resets the connection.
 """
 
+import errno
 import logging
+import select
 import socket
 import time
 
@@ -56,6 +58,7 @@ class TrackerReceiver:
         self.skipped = 0
         self.last_status = None
         self._next_attempt = 0.0
+        self._pending = None  # a connection attempt in progress
         self.on_update = None  # optional callable(device, matrix, timestamp_s) after each valid transform
 
     # -- connection ----------------------------------------------------------------------------------------
@@ -64,15 +67,30 @@ class TrackerReceiver:
         return self.socket is not None
 
     def _connect(self):
-        if self.clock() < self._next_attempt:
+        """Advance a non-blocking connection attempt; never blocks the caller (Slicer's GUI thread)."""
+        if self._pending is None:
+            if self.clock() < self._next_attempt:
+                return False
+            self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
+            pending = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            pending.setblocking(False)
+            error = pending.connect_ex((self.host, self.port))
+            if error not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
+                pending.close()
+                return False
+            self._pending = pending
+        _, writable, _ = select.select([], [self._pending], [], 0)
+        if not writable:
+            if self.clock() >= self._next_attempt:  # no answer within the interval: start again
+                self._pending.close()
+                self._pending = None
             return False
-        self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
-        try:
-            sock = socket.create_connection((self.host, self.port), timeout=0.5)
-        except OSError:
+        pending, self._pending = self._pending, None
+        if pending.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) != 0:
+            pending.close()
             return False
-        sock.setblocking(False)
-        self.socket, self.buffer = sock, bytearray()
+        pending.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.socket, self.buffer = pending, bytearray()
         logger.info("connected to the OpenIGTLink server at %s:%d", self.host, self.port)
         return True
 
@@ -83,9 +101,10 @@ class TrackerReceiver:
         self.socket, self.buffer = None, bytearray()
 
     def close(self):
-        if self.socket is not None:
-            self.socket.close()
-            self.socket = None
+        for sock in (self.socket, self._pending):
+            if sock is not None:
+                sock.close()
+        self.socket = self._pending = None
 
     # -- polling -------------------------------------------------------------------------------------------
     def poll(self):
