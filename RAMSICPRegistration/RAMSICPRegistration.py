@@ -120,6 +120,7 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.ui.pivotButton.connect("toggled(bool)", self.onPivotToggled)
         self.ui.markersPatientButton.connect("clicked(bool)", self.onMarkersPatient)
         self.ui.collectButton.connect("clicked(bool)", self.onCollect)
+        self.ui.collectMarkerButton.connect("clicked(bool)", self.onCollectMarker)
         self.ui.autoCollectCheckBox.connect("toggled(bool)", self.onAutoCollectToggled)
         self.ui.registerButton.connect("clicked(bool)", self.onRegister)
         self.ui.robotButton.connect("clicked(bool)", self.onRobot)
@@ -203,6 +204,18 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
                 parameters.probePoints = slicer.mrmlScene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "PPC")
             self.logic.navigation.collect_point(
                 parameters.probePoints, parameters.probeToReference, parameters.probeTipToProbe
+            )
+
+    def onCollectMarker(self):
+        """Touch a marker sphere's centre with the probe (a calibrated divot) instead of using the tool geometry."""
+        parameters = self._parameterNode
+        with slicer.util.tryWithErrorDisplay("The marker centre was not collected."):
+            if parameters.markersPatient is None:
+                parameters.markersPatient = slicer.mrmlScene.AddNewNodeByClass(
+                    "vtkMRMLMarkupsFiducialNode", "MarkersPatient"
+                )
+            self.logic.navigation.collect_point(
+                parameters.markersPatient, parameters.probeToReference, parameters.probeTipToProbe
             )
 
     def onAutoCollectToggled(self, enabled):
