@@ -29,12 +29,9 @@ def rng():
 @pytest.fixture(scope="session")
 def tibia_patient():
     """The demo's virtual patient: the shipped right tibia with an NDI 8700339 reference body."""
-    from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
-    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
-    from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+    from RAMSICPRegistrationLib.package_data import shipped_patient
 
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
-    return VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    return shipped_patient("right-tibia")[0]
 
 
 @pytest.fixture(scope="session")
@@ -95,11 +92,9 @@ def sphere_sdf(centre, radius):
 def tibia_phantom(tibia_patient):
     """The demo's CT phantom of the right tibia, with its ground truth (built once: about 8 s)."""
     from RAMSICPRegistrationLib.ct_phantom import make_ct_phantom
-    from RAMSICPRegistrationLib.package_data import bone_mesh_path
-    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+    from RAMSICPRegistrationLib.package_data import bone_mesh
 
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
-    return make_ct_phantom(tibia_patient, vertices, triangles, seed=0)
+    return make_ct_phantom(tibia_patient, *bone_mesh("right-tibia"), seed=0)
 
 
 def headless_scene():

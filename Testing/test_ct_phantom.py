@@ -53,10 +53,9 @@ def test_phantom_writes_nrrd_truth_and_surface(tibia_phantom, tmp_path):
 
 def test_phantom_is_deterministic_under_its_seed(tibia_patient):
     from RAMSICPRegistrationLib.ct_phantom import make_ct_phantom
-    from RAMSICPRegistrationLib.package_data import bone_mesh_path
-    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
+    from RAMSICPRegistrationLib.package_data import bone_mesh
 
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
+    vertices, triangles = bone_mesh("right-tibia")
     first, _ = make_ct_phantom(tibia_patient, vertices, triangles, seed=3, below_cut_mm=20.0)
     second, _ = make_ct_phantom(tibia_patient, vertices, triangles, seed=3, below_cut_mm=20.0)
     np.testing.assert_array_equal(first.voxels, second.voxels)

@@ -20,9 +20,7 @@ from vtkmodules.vtkFiltersCore import vtkMarchingCubes
 from RAMSICPRegistrationLib.ct_phantom import HU, make_ct_phantom
 from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
 from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres
-from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
-from RAMSICPRegistrationLib.surface_files import read_surface_mesh
-from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+from RAMSICPRegistrationLib.package_data import shipped_patient
 from RAMSICPRegistrationLib.volume_io import CTVolume
 from RAMSICPRegistrationLib.vtk_arrays import image_data
 
@@ -31,8 +29,7 @@ SHAPE = (512, 512, 400)
 
 
 def big_ct():
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
-    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    patient, vertices, triangles = shipped_patient("right-tibia")
     phantom, _ = make_ct_phantom(patient, vertices, triangles)
     rng = np.random.default_rng(0)
     voxels = (HU["air"] + rng.normal(scale=25.0, size=SHAPE)).astype(np.int16)

@@ -22,13 +22,11 @@ from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtk
 from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
 
 from RAMSICPRegistrationLib.icp import icp
-from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
+from RAMSICPRegistrationLib.package_data import shipped_patient
 from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
-from RAMSICPRegistrationLib.surface_files import read_surface_mesh
 from RAMSICPRegistrationLib.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.sweep import PAPER_SCALES, sweep_scales
 from RAMSICPRegistrationLib.transforms import apply_transform
-from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
 
 TARGET_SECONDS = 0.1
 
@@ -111,8 +109,7 @@ def main():
     parser.add_argument("--repeats", type=int, default=21)
     arguments = parser.parse_args()
 
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
-    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    patient, vertices, triangles = shipped_patient("right-tibia")
     rng = np.random.default_rng(1)
     fle = patient.marker_fle_for_cr_tre(1.33)
     trials = [patient.simulate_trial(rng, fle) for _ in range(arguments.repeats)]

@@ -105,10 +105,7 @@ def demo_simulator(
 
 def default_touch_points(seed=0):
     """The demo's 40 probe points on the right tibia, in reference coordinates (noise-free)."""
-    from RAMSICPRegistrationLib.package_data import BONES, bone_mesh_path, tool_marker_geometry
-    from RAMSICPRegistrationLib.surface_files import read_surface_mesh
-    from RAMSICPRegistrationLib.virtual_patient import VirtualPatient
+    from RAMSICPRegistrationLib.package_data import shipped_patient
 
-    vertices, triangles = read_surface_mesh(bone_mesh_path("right-tibia"))
-    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES["right-tibia"]["medial"])
+    patient, _, _ = shipped_patient("right-tibia")
     return patient.simulate_trial(np.random.default_rng(seed), 0.0, probe_noise_mm=0.0).ppc

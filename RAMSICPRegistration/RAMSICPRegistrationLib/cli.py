@@ -16,13 +16,12 @@ from .ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
 from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .experiment_report import write_outputs
 from .experiments import EXPERIMENTS, run_experiments
-from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
+from .package_data import BONES, DEFAULT_REFERENCE_TOOL, shipped_patient, tool_marker_geometry
 from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .registration import METHODS, POLICIES, register
-from .surface_files import read_surface_mesh, read_surface_points, write_surface
+from .surface_files import read_surface_points, write_surface
 from .surface_index import SurfaceIndex
 from .sweep import make_scales
-from .virtual_patient import VirtualPatient
 from .volume_io import CTVolume, load_volume, save_nrrd
 
 EXIT_BAD_INPUT = 2
@@ -331,14 +330,7 @@ def _run_live_demo(arguments):
     from .demo import PROBE_NOISE_MM, ct_image_side
 
     clock = time.perf_counter()
-    vertices, triangles = read_surface_mesh(bone_mesh_path(arguments.bone), untagged_space="RAS")
-    patient = VirtualPatient.from_mesh(
-        vertices,
-        triangles,
-        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
-        BONES[arguments.bone]["medial"],
-        seed=arguments.seed,
-    )
+    patient, vertices, triangles = shipped_patient(arguments.bone, arguments.seed)
     ipc = patient.ipc
     if arguments.image_source == "ct":
         ipc = ct_image_side(patient, vertices, triangles, arguments.seed, _ProgressBar()).ipc
@@ -431,14 +423,7 @@ def _run_phantom(arguments):
         if arguments.deformed in defects:
             raise ValueError("--partial and --deformed name the same marker; pick two different ones")
         defects[arguments.deformed] = "deformed"
-    vertices, triangles = read_surface_mesh(bone_mesh_path(arguments.bone), untagged_space="RAS")
-    patient = VirtualPatient.from_mesh(
-        vertices,
-        triangles,
-        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
-        BONES[arguments.bone]["medial"],
-        seed=arguments.seed,
-    )
+    patient, vertices, triangles = shipped_patient(arguments.bone, arguments.seed)
     clock = time.perf_counter()
     volume, truth = make_ct_phantom(
         patient, vertices, triangles, seed=arguments.seed, noise_hu=arguments.noise, defects=defects

@@ -17,12 +17,10 @@ import numpy as np
 
 from .ct_phantom import make_ct_phantom, signed_distance_to_mesh
 from .ct_pipeline import process_ct
-from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
+from .package_data import shipped_patient
 from .registration import DEFAULT_SCALE
-from .surface_files import read_surface_mesh
 from .surface_index import SurfaceIndex
 from .trials import evaluate_trial
-from .virtual_patient import VirtualPatient
 
 logger = logging.getLogger(__name__)
 
@@ -142,10 +140,7 @@ def run_demo(
         raise ValueError(f"image source {image_source!r}: use 'ct' or 'mesh'")
     report = progress or (lambda step, done, total: None)
     clock = time.perf_counter()
-    vertices, triangles = read_surface_mesh(bone_mesh_path(bone), untagged_space="RAS")
-    patient = VirtualPatient.from_mesh(
-        vertices, triangles, tool_marker_geometry(DEFAULT_REFERENCE_TOOL), BONES[bone]["medial"], seed=seed
-    )
+    patient, vertices, triangles = shipped_patient(bone, seed)
     marker_fle = patient.marker_fle_for_cr_tre(target_cr_tre_mm, seed=seed)
     setup_seconds = time.perf_counter() - clock
     if image_source == "ct":

@@ -16,9 +16,8 @@ from scipy import stats
 
 from .demo import ct_image_side
 from .metrics import target_registration_error
-from .package_data import BONES, DEFAULT_REFERENCE_TOOL, bone_mesh_path, tool_marker_geometry
+from .package_data import bone_mesh, shipped_patient
 from .paired_point import rigid_procrustes
-from .surface_files import read_surface_mesh
 from .surface_index import SurfaceIndex
 from .trials import evaluate_trial
 from .virtual_patient import VirtualPatient
@@ -80,14 +79,11 @@ def build_subjects(count, seed=0, image_source="ct", progress=None):
     for number in range(count):
         bone = SUBJECT_BONES[number % len(SUBJECT_BONES)]
         if bone not in meshes:
-            meshes[bone] = read_surface_mesh(bone_mesh_path(bone), untagged_space="RAS")
-        vertices, triangles = meshes[bone]
-        patient = VirtualPatient.from_mesh(
-            vertices,
-            triangles,
-            tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
-            BONES[bone]["medial"],
-            seed=seed + number,
+            meshes[bone] = bone_mesh(bone)
+        patient, vertices, triangles = shipped_patient(
+            bone,
+            seed + number,
+            mesh=meshes[bone],
             bracket_offset_mm=(
                 rng.uniform(*ERROR_MODEL["bracket_lateral_mm"]),
                 rng.uniform(*ERROR_MODEL["bracket_anterior_mm"]),

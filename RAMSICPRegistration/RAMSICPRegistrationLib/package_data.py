@@ -38,3 +38,29 @@ def tool_marker_geometry(tool_id=DEFAULT_REFERENCE_TOOL):
     if tool_id not in tools:
         raise ValueError(f"NDI tool {tool_id!r}: known tools are {', '.join(tools)}")
     return np.array(tools[tool_id]["markers"], dtype=np.float64)
+
+
+def bone_mesh(name):
+    """Vertices (V, 3) in RAS mm and triangles (K, 3) of a shipped bone mesh."""
+    from .surface_files import read_surface_mesh
+
+    return read_surface_mesh(bone_mesh_path(name), untagged_space="RAS")
+
+
+def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
+    """A VirtualPatient on a shipped bone with the default NDI reference body.
+
+    Args:
+        mesh: the bone's (vertices, triangles) when already read (saves reading the file again).
+        options: passed to ``VirtualPatient.from_mesh`` (bracket offset, turn, ...).
+
+    Returns:
+        (patient, vertices, triangles).
+    """
+    from .virtual_patient import VirtualPatient
+
+    vertices, triangles = bone_mesh(bone) if mesh is None else mesh
+    patient = VirtualPatient.from_mesh(
+        vertices, triangles, tool_marker_geometry(DEFAULT_REFERENCE_TOOL), BONES[bone]["medial"], seed=seed, **options
+    )
+    return patient, vertices, triangles

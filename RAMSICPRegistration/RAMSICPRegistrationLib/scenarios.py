@@ -10,18 +10,15 @@ import numpy as np
 from . import mrml_nodes
 from .ct_phantom import make_ct_phantom
 from .navigation import NavigationLogic, matrix_of, set_matrix
-from .package_data import BONES, bone_mesh_path, tool_marker_geometry
-from .surface_files import read_surface_mesh
+from .package_data import shipped_patient
 from .transforms import apply_transform, invert_transform, make_transform, probe_to_reference, rotation_about_axis
-from .virtual_patient import VirtualPatient
 
 TIP_IN_PROBE = np.array([0.0, 0.0, 150.0])
 
 
 def make_patient_and_ct(bone="right-tibia", seed=0):
     """A virtual patient and its CT phantom (about 10 s)."""
-    vertices, triangles = read_surface_mesh(bone_mesh_path(bone))
-    patient = VirtualPatient.from_mesh(vertices, triangles, tool_marker_geometry(), BONES[bone]["medial"], seed=seed)
+    patient, vertices, triangles = shipped_patient(bone, seed)
     volume, truth = make_ct_phantom(patient, vertices, triangles, seed=seed)
     return patient, volume, truth
 

@@ -9,8 +9,8 @@ It follows the paper's set-up ("Data acquisition", "Experimental preparation") o
   planned high tibial osteotomy; 5 points are touched in each;
 * 4 target points: the medial, lateral, anterior and posterior ends of the osteotomy cut.
 
-The image side comes from the mesh here; a later CT-phantom source replaces ``VirtualPatient.from_mesh`` and
-keeps ``simulate_trial``.
+The IPC here is sampled on the mesh; ``ct_phantom.make_ct_phantom`` renders the same patient as a CT, whose
+image side replaces it, and ``simulate_trial`` serves both.
 """
 
 from dataclasses import dataclass
