@@ -17,7 +17,7 @@ CORE_MODULES = (
     "registration",
     "virtual_patient",
 )
-ALLOWED = {"numpy", "scipy", "dataclasses", "logging", "__future__"}
+ALLOWED = {"numpy", "scipy", "dataclasses", "functools", "logging", "__future__"}  # and standard-library helpers
 
 
 def test_core_modules_import_only_numpy_and_scipy():

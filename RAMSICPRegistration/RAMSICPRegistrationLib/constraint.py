@@ -79,12 +79,6 @@ def analyse_pose_constraint(points, normals, probe_noise_mm=DEFAULT_PROBE_NOISE_
     )
 
 
-def bone_long_axis(ipc_points):
-    """Unit direction of the largest extent of the IPC (the long axis of a long bone), (3,)."""
-    centred = ipc_points[:: max(1, len(ipc_points) // 20000)] - ipc_points.mean(axis=0)
-    return np.linalg.svd(centred, full_matrices=False)[2][0]
-
-
 def _describe(uncertainty, is_rotation, axis, radius, noise, long_axis):
     direction = f"({axis[0]:+.2f}, {axis[1]:+.2f}, {axis[2]:+.2f})"
     relation = ""

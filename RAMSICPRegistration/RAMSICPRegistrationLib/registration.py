@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constraint import analyse_pose_constraint, bone_long_axis
+from .constraint import analyse_pose_constraint
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
@@ -177,7 +177,7 @@ def register(
     warnings += _outlier_warnings(residuals)
     registered = apply_transform(transform, ppc)
     _, matches = index.nearest(registered)
-    report = analyse_pose_constraint(registered, index.normals(matches), long_axis=bone_long_axis(index.points))
+    report = analyse_pose_constraint(registered, index.normals(matches), long_axis=index.long_axis)
     if report.warning:
         warnings.append(report.warning)
 

@@ -1,6 +1,7 @@
 """The image point cloud (IPC) with its KD-tree, built once and shared by every method and every scale L."""
 
 import logging
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,6 +29,12 @@ class SurfaceIndex:
 
     def __len__(self):
         return len(self.points)
+
+    @cached_property
+    def long_axis(self):
+        """Unit direction (3,) of the IPC's largest extent: the long axis of a long bone (computed once)."""
+        sample = self.points[:: max(1, len(self.points) // 20000)]
+        return np.linalg.svd(sample - self.points.mean(axis=0), full_matrices=False)[2][0]
 
     def nearest(self, query):
         """Closest IPC point to each (N, 3) query point: returns distances (N,) in mm and indices (N,)."""
