@@ -1,7 +1,7 @@
 """RAMSICPRegistration: the surgeon's workflow from CT to a verified patient-to-image registration (CR-RAMSICP).
 
-A thin Slicer shell: the widget wires the GUI to ``RAMSICPRegistrationLib.navigation.NavigationLogic``, which
-does the work on the MRML nodes it is given; the self-test runs ``RAMSICPRegistrationLib.scenarios``.
+A thin Slicer shell: the widget wires the GUI to ``RAMSICPRegistrationLib.navigation.navigation.NavigationLogic``,
+which does the work on the MRML nodes it is given; the self-test runs ``RAMSICPRegistrationLib.navigation.scenarios``.
 """
 
 import importlib.util
@@ -188,7 +188,7 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
             )
 
     def onPivotPose(self, caller, event):
-        from RAMSICPRegistrationLib.navigation import matrix_of
+        from RAMSICPRegistrationLib.navigation.navigation import matrix_of
 
         self._pivotPoses.append(matrix_of(caller))
 
@@ -292,7 +292,7 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
 
     # Step 6
     def onRobot(self):
-        from RAMSICPRegistrationLib.navigation import points_of
+        from RAMSICPRegistrationLib.navigation.navigation import points_of
 
         parameters = self._parameterNode
         with slicer.util.tryWithErrorDisplay("Robot calibration failed."):
@@ -319,7 +319,7 @@ class RAMSICPRegistrationLogic(ScriptedLoadableModuleLogic):
 
     def __init__(self):
         ScriptedLoadableModuleLogic.__init__(self)
-        from RAMSICPRegistrationLib.navigation import NavigationLogic
+        from RAMSICPRegistrationLib.navigation.navigation import NavigationLogic
 
         autosave = os.path.join(slicer.app.temporaryPath, "RAMSICPNavigator-autosave")
         self.navigation = NavigationLogic(slicer.mrmlScene, autosave_directory=autosave)
@@ -340,7 +340,7 @@ class RAMSICPRegistrationTest(ScriptedLoadableModuleTest):
         self.test_workflow_on_a_ct_phantom()
 
     def test_workflow_on_a_ct_phantom(self):
-        from RAMSICPRegistrationLib.scenarios import check_workflow, make_patient_and_ct, run_workflow
+        from RAMSICPRegistrationLib.navigation.scenarios import check_workflow, make_patient_and_ct, run_workflow
 
         self.delayDisplay("Building a CT phantom of the tibia (about 10 s)")
         patient, volume, truth = make_patient_and_ct()

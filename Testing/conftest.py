@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
 
 
 def random_transform(rng, max_angle_deg=180.0, max_translation_mm=100.0):
@@ -29,14 +29,14 @@ def rng():
 @pytest.fixture(scope="session")
 def tibia_patient():
     """The demo's virtual patient: the shipped right tibia with an NDI 8700339 reference body."""
-    from RAMSICPRegistrationLib.package_data import shipped_patient
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
 
     return shipped_patient("right-tibia")[0]
 
 
 @pytest.fixture(scope="session")
 def tibia_index(tibia_patient):
-    from RAMSICPRegistrationLib.surface_index import SurfaceIndex
+    from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 
     return SurfaceIndex(tibia_patient.ipc)
 
@@ -60,8 +60,8 @@ def analytic_volume(
     """
     from scipy import ndimage
 
-    from RAMSICPRegistrationLib.transforms import rotation_about_axis
-    from RAMSICPRegistrationLib.volume_io import CTVolume
+    from RAMSICPRegistrationLib.core.transforms import rotation_about_axis
+    from RAMSICPRegistrationLib.image.volume_io import CTVolume
 
     spacing = np.asarray(spacing, dtype=np.float64)
     shape = np.ceil(np.asarray(size_mm) / spacing).astype(int)
@@ -91,8 +91,8 @@ def sphere_sdf(centre, radius):
 @pytest.fixture(scope="session")
 def tibia_phantom(tibia_patient):
     """The demo's CT phantom of the right tibia, with its ground truth (built once: about 8 s)."""
-    from RAMSICPRegistrationLib.ct_phantom import make_ct_phantom
-    from RAMSICPRegistrationLib.package_data import bone_mesh
+    from RAMSICPRegistrationLib.simulation.ct_phantom import make_ct_phantom
+    from RAMSICPRegistrationLib.simulation.package_data import bone_mesh
 
     return make_ct_phantom(tibia_patient, *bone_mesh("right-tibia"), seed=0)
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from RAMSICPRegistrationLib.cli import main
-from RAMSICPRegistrationLib.point_files import write_points
-from RAMSICPRegistrationLib.registration import register
-from RAMSICPRegistrationLib.surface_files import write_surface
-from RAMSICPRegistrationLib.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.core.registration import register
+from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.io.point_files import write_points
+from RAMSICPRegistrationLib.io.surface_files import write_surface
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from RAMSICPRegistrationLib.constraint import analyse_pose_constraint
+from RAMSICPRegistrationLib.core.constraint import analyse_pose_constraint
 
 
 def test_points_on_a_plane_leave_motions_free():

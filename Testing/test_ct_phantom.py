@@ -7,11 +7,11 @@ import nibabel
 import numpy as np
 
 from RAMSICPRegistrationLib.cli import main
-from RAMSICPRegistrationLib.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh, write_phantom
-from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
-from RAMSICPRegistrationLib.point_files import read_points
-from RAMSICPRegistrationLib.surface_files import read_surface_points
-from RAMSICPRegistrationLib.volume_io import load_volume, save_nrrd
+from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, segment_bone
+from RAMSICPRegistrationLib.image.volume_io import load_volume, save_nrrd
+from RAMSICPRegistrationLib.io.point_files import read_points
+from RAMSICPRegistrationLib.io.surface_files import read_surface_points
+from RAMSICPRegistrationLib.simulation.ct_phantom import HU, PAPER_SPACING_MM, signed_distance_to_mesh, write_phantom
 
 DATA = Path(__file__).parent / "Data"
 
@@ -52,8 +52,8 @@ def test_phantom_writes_nrrd_truth_and_surface(tibia_phantom, tmp_path):
 
 
 def test_phantom_is_deterministic_under_its_seed(tibia_patient):
-    from RAMSICPRegistrationLib.ct_phantom import make_ct_phantom
-    from RAMSICPRegistrationLib.package_data import bone_mesh
+    from RAMSICPRegistrationLib.simulation.ct_phantom import make_ct_phantom
+    from RAMSICPRegistrationLib.simulation.package_data import bone_mesh
 
     vertices, triangles = bone_mesh("right-tibia")
     first, _ = make_ct_phantom(tibia_patient, vertices, triangles, seed=3, below_cut_mm=20.0)
@@ -108,7 +108,7 @@ def test_cli_ipc_bad_inputs(tmp_path, capsys):
 def test_real_ct_surface_matches_an_independent_segmentation():
     from scipy.spatial import cKDTree
 
-    from RAMSICPRegistrationLib.ct_segmentation import iso_surface
+    from RAMSICPRegistrationLib.image.ct_segmentation import iso_surface
 
     volume = load_volume(DATA / "example_ct.nii.gz")
     surface = bone_surface(volume, segment_bone(volume))

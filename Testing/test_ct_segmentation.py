@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
-from RAMSICPRegistrationLib.marker_spheres import fit_sphere
+from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
+from RAMSICPRegistrationLib.image.marker_spheres import fit_sphere
 
 from conftest import analytic_volume, sphere_sdf
 

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from RAMSICPRegistrationLib.cli import main
-from RAMSICPRegistrationLib.experiments import FIG9_LEVELS_MM, run_experiments
+from RAMSICPRegistrationLib.experiments.experiments import FIG9_LEVELS_MM, run_experiments
 
 
 @pytest.fixture(scope="module")
@@ -111,6 +111,6 @@ def test_unknown_experiment_is_refused():
     ],
 )
 def test_fig7_curve_shapes_in_words(curve, words):
-    from RAMSICPRegistrationLib.experiment_report import _curve_shape
+    from RAMSICPRegistrationLib.experiments.experiment_report import _curve_shape
 
     assert _curve_shape(np.array(curve)).startswith(words)

@@ -3,10 +3,15 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.icp import MatchingRanges, icp, ramsicp
-from RAMSICPRegistrationLib.paired_point import rigid_procrustes
-from RAMSICPRegistrationLib.surface_index import SurfaceIndex
-from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.icp import MatchingRanges, icp, ramsicp
+from RAMSICPRegistrationLib.core.paired_point import rigid_procrustes
+from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.core.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    rotation_about_axis,
+)
 
 from conftest import ellipsoid_points
 

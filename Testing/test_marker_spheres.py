@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.ct_segmentation import segment_bone
-from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
-from RAMSICPRegistrationLib.package_data import tool_marker_geometry
-from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.transforms import apply_transform, make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone
+from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
+from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 
 from conftest import analytic_volume, sphere_sdf
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.metrics import fle_from_fre, predicted_tre, target_registration_error
-from RAMSICPRegistrationLib.paired_point import rigid_procrustes
-from RAMSICPRegistrationLib.transforms import apply_transform, make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.metrics import fle_from_fre, predicted_tre, target_registration_error
+from RAMSICPRegistrationLib.core.paired_point import rigid_procrustes
+from RAMSICPRegistrationLib.core.transforms import apply_transform, make_transform, rotation_about_axis
 
 SQUARE = np.array([[10.0, 10.0, 0.0], [-10.0, 10.0, 0.0], [-10.0, -10.0, 0.0], [10.0, -10.0, 0.0]])
 

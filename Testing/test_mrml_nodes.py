@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
-from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres
-from RAMSICPRegistrationLib.volume_io import load_volume
+from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, segment_bone
+from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres
+from RAMSICPRegistrationLib.image.volume_io import load_volume
 
 from conftest import analytic_volume, sphere_sdf
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
-from RAMSICPRegistrationLib import mrml_nodes  # noqa: E402
+from RAMSICPRegistrationLib.navigation import mrml_nodes  # noqa: E402
 
 CENTRE = np.array([10.0, -20.0, 30.0])
 

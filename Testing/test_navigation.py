@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.transforms import (
+from RAMSICPRegistrationLib.core.transforms import (
     apply_transform,
     invert_transform,
     make_transform,
@@ -17,9 +17,9 @@ from RAMSICPRegistrationLib.transforms import (
 from conftest import headless_scene, random_transform
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
-from RAMSICPRegistrationLib import mrml_nodes  # noqa: E402
-from RAMSICPRegistrationLib.navigation import NavigationLogic, load_scene, matrix_of, set_matrix  # noqa: E402
-from RAMSICPRegistrationLib.scenarios import TIP_IN_PROBE, check_workflow, run_workflow  # noqa: E402
+from RAMSICPRegistrationLib.navigation import mrml_nodes  # noqa: E402
+from RAMSICPRegistrationLib.navigation.navigation import NavigationLogic, load_scene, matrix_of, set_matrix  # noqa: E402
+from RAMSICPRegistrationLib.navigation.scenarios import TIP_IN_PROBE, check_workflow, run_workflow  # noqa: E402
 
 TIP = TIP_IN_PROBE  # probe tip offset in the probe frame (mm)
 
@@ -184,6 +184,6 @@ def test_bad_nodes_and_inputs_say_what_to_do(workflow):
 
 
 def _air_volume():
-    from RAMSICPRegistrationLib.volume_io import CTVolume
+    from RAMSICPRegistrationLib.image.volume_io import CTVolume
 
     return CTVolume(voxels=np.full((20, 20, 20), -1000, np.int16), ijk_to_ras=np.diag([0.5, 0.5, 0.625, 1.0]))

@@ -80,7 +80,7 @@ def test_cpp_client_reads_our_transforms_bit_exactly(programs):
 
 def test_our_receiver_reads_a_cpp_server_bit_exactly(programs):
     pytest.importorskip("slicer", reason="the receiver writes real MRML nodes: slicer-core needs Python >= 3.10")
-    from RAMSICPRegistrationLib.navigation import matrix_of
+    from RAMSICPRegistrationLib.navigation.navigation import matrix_of
 
     values = np.concatenate((POSE[:3, :3].T.ravel(), POSE[:3, 3]))
     hexes = [f"{bits:08x}" for bits in _bits(values)]

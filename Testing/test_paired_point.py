@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
-from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
+from RAMSICPRegistrationLib.core.paired_point import fit_rigid_transform
+from RAMSICPRegistrationLib.core.transforms import apply_transform, invert_transform, make_transform
 
 from conftest import random_transform
 

@@ -3,9 +3,14 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.pivot import pivot_calibration
-from RAMSICPRegistrationLib.robot import auxiliary_frame, image_to_robot_base, robot_base_to_tracker
-from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.pivot import pivot_calibration
+from RAMSICPRegistrationLib.core.robot import auxiliary_frame, image_to_robot_base, robot_base_to_tracker
+from RAMSICPRegistrationLib.core.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    rotation_about_axis,
+)
 
 from conftest import random_transform
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.point_files import PointFileError, read_points, write_points
+from RAMSICPRegistrationLib.io.point_files import PointFileError, read_points, write_points
 
 POINTS_RAS = np.array([[12.5, -40.25, 101.0], [-3.0, 7.125, -0.5], [100.0, 200.0, 300.0]])
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.registration import register
-from RAMSICPRegistrationLib.transforms import apply_transform, invert_transform, make_transform
+from RAMSICPRegistrationLib.core.registration import register
+from RAMSICPRegistrationLib.core.transforms import apply_transform, invert_transform, make_transform
 
 
 def _exact_case(patient, rng, marker_shift=(0.0, 0.0, 0.0), count=60):

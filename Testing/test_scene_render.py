@@ -4,7 +4,7 @@ import numpy as np
 from vtkmodules.util.numpy_support import vtk_to_numpy
 from vtkmodules.vtkIOImage import vtkPNGReader
 
-from RAMSICPRegistrationLib.scene_render import render_registration
+from RAMSICPRegistrationLib.navigation.scene_render import render_registration
 
 from conftest import ellipsoid_points
 

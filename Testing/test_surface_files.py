@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.package_data import bone_mesh_path
-from RAMSICPRegistrationLib.point_files import PointFileError, write_points
-from RAMSICPRegistrationLib.surface_files import read_surface_mesh, read_surface_points, write_surface
+from RAMSICPRegistrationLib.io.point_files import PointFileError, write_points
+from RAMSICPRegistrationLib.io.surface_files import read_surface_mesh, read_surface_points, write_surface
+from RAMSICPRegistrationLib.simulation.package_data import bone_mesh_path
 
 TETRA = np.array([[10.0, 20.0, 30.0], [15.0, 20.0, 30.0], [10.0, 26.0, 30.0], [10.0, 20.0, 37.0]])
 FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])

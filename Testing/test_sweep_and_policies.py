@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.icp import FineResult, ramsicp
-from RAMSICPRegistrationLib.metrics import target_registration_error
-from RAMSICPRegistrationLib.registration import select_scale
-from RAMSICPRegistrationLib.surface_index import SurfaceIndex
-from RAMSICPRegistrationLib.sweep import PAPER_SCALES, SweepEntry, make_scales, sweep_scales
-from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.icp import FineResult, ramsicp
+from RAMSICPRegistrationLib.core.metrics import target_registration_error
+from RAMSICPRegistrationLib.core.registration import select_scale
+from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.core.sweep import PAPER_SCALES, SweepEntry, make_scales, sweep_scales
+from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
 
 from conftest import ellipsoid_points
 

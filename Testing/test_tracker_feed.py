@@ -12,13 +12,13 @@ from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
 from OpenIGTLinkBridgeLib.live_scenario import PROBE_TIP_MM, demo_simulator
 from OpenIGTLinkBridgeLib.ndi_driver import NDITracker, TrackerConnectionError, open_tracker
 from OpenIGTLinkBridgeLib.ndi_protocol import NDICommandError, crc16
-from RAMSICPRegistrationLib.package_data import DATA_DIR
+from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
 from conftest import headless_scene
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
 from OpenIGTLinkBridgeLib.receiver import TrackerReceiver  # noqa: E402
-from RAMSICPRegistrationLib.navigation import matrix_of  # noqa: E402
+from RAMSICPRegistrationLib.navigation.navigation import matrix_of  # noqa: E402
 
 POINTS = np.array([[0.0, 0.0, 0.0], [12.0, -3.0, 5.0], [-4.0, 9.0, 2.0], [7.0, 7.0, -6.0]])
 
@@ -244,7 +244,7 @@ def test_scikit_surgery_nditracker_reads_the_simulator_process(tmp_path):
                 "tracker type": "vega",
                 "ip address": "127.0.0.1",
                 "port": port,
-                "romfiles": [str(DATA_DIR / "8700339.rom"), str(DATA_DIR / "8700340.rom")],
+                "romfiles": [str(tool_rom_path("8700339")), str(tool_rom_path("8700340"))],
             }
         )
         tracker.start_tracking()

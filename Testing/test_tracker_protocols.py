@@ -7,7 +7,7 @@ import pytest
 
 from OpenIGTLinkBridgeLib import igtl_messages as igtl
 from OpenIGTLinkBridgeLib import ndi_protocol as ndi
-from RAMSICPRegistrationLib.transforms import make_transform, rotation_about_axis
+from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
 
 POSE = make_transform(rotation_about_axis((1.0, -2.0, 0.5), 0.7), (123.25, -45.5, -1500.75))
 

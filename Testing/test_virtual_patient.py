@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.metrics import target_registration_error
-from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
-from RAMSICPRegistrationLib.virtual_patient import sample_surface
+from RAMSICPRegistrationLib.core.metrics import target_registration_error
+from RAMSICPRegistrationLib.core.paired_point import fit_rigid_transform
+from RAMSICPRegistrationLib.simulation.virtual_patient import sample_surface
 
 
 def test_surface_samples_lie_on_triangles_with_outward_normals():
@@ -58,7 +58,7 @@ def test_trial_error_model(tibia_patient, tibia_index):
     clean = tibia_patient.simulate_trial(np.random.default_rng(9), 1.0, probe_noise_mm=0.0)
     noisy = tibia_patient.simulate_trial(np.random.default_rng(9), 1.0, probe_noise_mm=0.25)
     on_surface = np.vstack(tibia_patient.sub_area_points)
-    from RAMSICPRegistrationLib.transforms import apply_transform
+    from RAMSICPRegistrationLib.core.transforms import apply_transform
 
     clean_in_image = apply_transform(tibia_patient.reference_to_image, clean.ppc)
     assert np.min(np.linalg.norm(on_surface[None] - clean_in_image[:, None], axis=2), axis=1).max() < 1e-9

@@ -5,9 +5,9 @@ import nrrd
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.point_files import PointFileError
-from RAMSICPRegistrationLib.transforms import rotation_about_axis
-from RAMSICPRegistrationLib.volume_io import CTVolume, check_volume, load_volume, save_nrrd
+from RAMSICPRegistrationLib.core.transforms import rotation_about_axis
+from RAMSICPRegistrationLib.image.volume_io import CTVolume, check_volume, load_volume, save_nrrd
+from RAMSICPRegistrationLib.io.point_files import PointFileError
 
 VOXELS = np.arange(4 * 5 * 6, dtype=np.int16).reshape(4, 5, 6)
 

@@ -17,12 +17,12 @@ import time
 import numpy as np
 from vtkmodules.vtkFiltersCore import vtkMarchingCubes
 
-from RAMSICPRegistrationLib.ct_phantom import HU, make_ct_phantom
-from RAMSICPRegistrationLib.ct_segmentation import bone_surface, segment_bone
-from RAMSICPRegistrationLib.marker_spheres import detect_marker_spheres
-from RAMSICPRegistrationLib.package_data import shipped_patient
-from RAMSICPRegistrationLib.volume_io import CTVolume
-from RAMSICPRegistrationLib.vtk_arrays import image_data
+from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, segment_bone
+from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres
+from RAMSICPRegistrationLib.image.volume_io import CTVolume
+from RAMSICPRegistrationLib.io.vtk_arrays import image_data
+from RAMSICPRegistrationLib.simulation.ct_phantom import HU, make_ct_phantom
+from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
 
 TARGET_SECONDS = 10.0
 SHAPE = (512, 512, 400)

@@ -21,12 +21,12 @@ from vtkmodules.vtkCommonCore import vtkPoints
 from vtkmodules.vtkCommonDataModel import vtkIterativeClosestPointTransform, vtkPolyData
 from vtkmodules.vtkFiltersGeneral import vtkVertexGlyphFilter
 
-from RAMSICPRegistrationLib.icp import icp
-from RAMSICPRegistrationLib.package_data import shipped_patient
-from RAMSICPRegistrationLib.paired_point import fit_rigid_transform
-from RAMSICPRegistrationLib.surface_index import SurfaceIndex
-from RAMSICPRegistrationLib.sweep import PAPER_SCALES, sweep_scales
-from RAMSICPRegistrationLib.transforms import apply_transform
+from RAMSICPRegistrationLib.core.icp import icp
+from RAMSICPRegistrationLib.core.paired_point import fit_rigid_transform
+from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.core.sweep import PAPER_SCALES, sweep_scales
+from RAMSICPRegistrationLib.core.transforms import apply_transform
+from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
 
 TARGET_SECONDS = 0.1
 

@@ -5,5 +5,5 @@ a reason: ``igtl_messages`` (OpenIGTLink header versions 1 and 2, TRANSFORM, STA
 ``ndi_protocol`` (NDI Combined API framing, ERROR meanings, the TX reply). The NDI driver, the Vega simulator,
 the PLUS-compatible server and the Slicer receiver build on them. The frame arithmetic of paper eq. 2,
 ``ProbeToReference = inv(ReferenceToTracker) @ ProbeToTracker``, is
-``RAMSICPRegistrationLib.transforms.probe_to_reference``.
+``RAMSICPRegistrationLib.core.transforms.probe_to_reference``.
 """

@@ -215,13 +215,13 @@ def main(argv=None):
     parser.add_argument("--probe-rom", help="probe .rom (default NDI 8700340)")
     arguments = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
-    from RAMSICPRegistrationLib.package_data import DATA_DIR
+    from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
     from .ndi_driver import open_tracker
 
     roms = {
-        "Reference": arguments.reference_rom or DATA_DIR / "8700339.rom",
-        "Probe": arguments.probe_rom or DATA_DIR / "8700340.rom",
+        "Reference": arguments.reference_rom or tool_rom_path("8700339"),
+        "Probe": arguments.probe_rom or tool_rom_path("8700340"),
     }
     simulator, host, port = None, None, 8765
     if arguments.simulate:

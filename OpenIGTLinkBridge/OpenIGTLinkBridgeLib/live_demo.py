@@ -69,7 +69,7 @@ def run_live_demo(
             (reference coordinates) the probe touches and whose markers and targets the registration uses.
         probe_noise_mm: RMS 3-D noise of the tip in the reference frame (split between the two tools).
     """
-    from RAMSICPRegistrationLib.registration import register
+    from RAMSICPRegistrationLib.core.registration import register
 
     from .receiver import TrackerReceiver
 

@@ -71,15 +71,15 @@ def demo_simulator(
     ``points_reference`` default: the 40 probe points of the demo's tibia (seed 0). ``dropout(time_s)`` and
     ``out_of_volume(time_s)`` make the probe MISSING or out of volume when they return True.
     """
-    from RAMSICPRegistrationLib.package_data import DATA_DIR
+    from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
     if points_reference is None:
         points_reference = default_touch_points(seed)
     script = TouchScript(
         np.asarray(points_reference, dtype=np.float64), np.asarray(reference_to_tracker), dwell_s, move_s
     )
-    reference_rom = (DATA_DIR / "8700339.rom").read_bytes()
-    probe_rom = (DATA_DIR / "8700340.rom").read_bytes()
+    reference_rom = tool_rom_path("8700339").read_bytes()
+    probe_rom = tool_rom_path("8700340").read_bytes()
 
     def poses(time_s):
         probe = (
@@ -105,7 +105,7 @@ def demo_simulator(
 
 def default_touch_points(seed=0):
     """The demo's 40 probe points on the right tibia, in reference coordinates (noise-free)."""
-    from RAMSICPRegistrationLib.package_data import shipped_patient
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
 
     patient, _, _ = shipped_patient("right-tibia")
     return patient.simulate_trial(np.random.default_rng(seed), 0.0, probe_noise_mm=0.0).ppc

@@ -152,9 +152,9 @@ def open_tracker(host=None, port=8765, serial_device=None, roms=None, timeout_s=
     the probe NDI 8700340 as 'Probe' (shipped with the package).
     """
     if roms is None:
-        from RAMSICPRegistrationLib.package_data import DATA_DIR
+        from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
-        roms = {"Reference": DATA_DIR / "8700339.rom", "Probe": DATA_DIR / "8700340.rom"}
+        roms = {"Reference": tool_rom_path("8700339"), "Probe": tool_rom_path("8700340")}
     tracker = NDITracker(host, port, serial_device, timeout_s).connect()
     for name, rom in roms.items():
         tracker.load_tool(rom, name)

@@ -245,14 +245,14 @@ class VegaSimulator:
 
 
 def _main():
-    from RAMSICPRegistrationLib.package_data import DATA_DIR
+    from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
     parser = argparse.ArgumentParser(description="NDI Vega simulator (Combined API over TCP) on loopback")
     parser.add_argument("--port", type=int, default=VEGA_PORT)
     parser.add_argument("--noise", type=float, default=0.0, help="translation noise, mm RMS")
     arguments = parser.parse_args()
-    reference = (DATA_DIR / "8700339.rom").read_bytes()
-    probe = (DATA_DIR / "8700340.rom").read_bytes()
+    reference = tool_rom_path("8700339").read_bytes()
+    probe = tool_rom_path("8700340").read_bytes()
     reference_pose = np.eye(4)
     reference_pose[:3, 3] = (0.0, 0.0, -1500.0)
 

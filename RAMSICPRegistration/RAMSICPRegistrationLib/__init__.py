@@ -2,7 +2,9 @@
 
 Plain Python, the Slicer Python console and the ``ramsicp`` command line all use this package::
 
-    from RAMSICPRegistrationLib import SurfaceIndex, register
+    from RAMSICPRegistrationLib import SurfaceIndex, read_points, read_surface_points, register
+    ipc = read_surface_points("bone.vtp")            # (M, 3) image points, RAS mm
+    ppc = read_points("probe_points.mrk.json")      # (N, 3) probe points in reference coordinates
     result = register(SurfaceIndex(ipc), ppc, markers_image, markers_patient, method="cr-ramsicp", sweep=True)
     result.reference_to_image  # (4, 4) ReferenceToImage, the paper's eq. 10
 
@@ -12,52 +14,85 @@ Plain Python, the Slicer Python console and the ``ramsicp`` command line all use
     spheres = detect_marker_spheres(volume, segmentation)
 
 Points are (N, 3) float arrays in mm, transforms (4, 4) arrays; ``AToB`` maps frame A to frame B.
+
+The sub-packages are the layers of DESIGN.md, each importing only those before it:
+
+=============== ==========================================================================================
+``core``        the registration itself (numpy/scipy only): paired points, ICP, RAMSICP, sweep, metrics
+``io``          point and surface files, VTK array conversion, the shipped NDI tool geometries
+``image``       CT volumes to the IPC and the marker-sphere centres
+``simulation``  the virtual patient, CT phantoms and the shipped bone meshes
+``navigation``  the surgeon's workflow on an MRML scene, scene rendering
+``experiments`` the demo, the trials and the paper's experiments
+=============== ==========================================================================================
+
+The names below are imported on first use, so ``import RAMSICPRegistrationLib`` stays cheap and the registration
+core can be used without VTK.
 """
 
-from .ct_phantom import make_ct_phantom
-from .ct_segmentation import bone_surface, segment_bone
-from .icp import FineResult, MatchingRanges, icp, ramsicp
-from .marker_spheres import detect_marker_spheres, order_to_tool
-from .metrics import fle_from_fre, predicted_tre, target_registration_error
-from .paired_point import PairedPointFit, fit_rigid_transform
-from .registration import DEFAULT_SCALE, METHODS, POLICIES, RegistrationResult, register, select_scale
-from .surface_index import SurfaceIndex
-from .sweep import PAPER_SCALES, SweepEntry, make_scales, sweep_scales
-from .transforms import apply_transform, invert_transform, make_transform, probe_to_reference
-from .volume_io import CTVolume, load_volume
+import importlib
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "CTVolume",
-    "DEFAULT_SCALE",
-    "METHODS",
-    "PAPER_SCALES",
-    "POLICIES",
-    "FineResult",
-    "MatchingRanges",
-    "PairedPointFit",
-    "RegistrationResult",
-    "SurfaceIndex",
-    "SweepEntry",
-    "apply_transform",
-    "fit_rigid_transform",
-    "fle_from_fre",
-    "icp",
-    "invert_transform",
-    "make_scales",
-    "make_transform",
-    "predicted_tre",
-    "probe_to_reference",
-    "ramsicp",
-    "register",
-    "select_scale",
-    "sweep_scales",
-    "target_registration_error",
-    "load_volume",
-    "segment_bone",
-    "bone_surface",
-    "detect_marker_spheres",
-    "order_to_tool",
-    "make_ct_phantom",
-]
+#: Public name -> the module (relative to this package) that defines it.
+_EXPORTS = {
+    # core: the registration (eqs. 5-11)
+    "fit_rigid_transform": "core.paired_point",
+    "PairedPointFit": "core.paired_point",
+    "FineResult": "core.icp",
+    "MatchingRanges": "core.icp",
+    "icp": "core.icp",
+    "ramsicp": "core.icp",
+    "fle_from_fre": "core.metrics",
+    "predicted_tre": "core.metrics",
+    "target_registration_error": "core.metrics",
+    "DEFAULT_SCALE": "core.registration",
+    "METHODS": "core.registration",
+    "POLICIES": "core.registration",
+    "RegistrationResult": "core.registration",
+    "register": "core.registration",
+    "select_scale": "core.registration",
+    "SurfaceIndex": "core.surface_index",
+    "PAPER_SCALES": "core.sweep",
+    "SweepEntry": "core.sweep",
+    "make_scales": "core.sweep",
+    "sweep_scales": "core.sweep",
+    "apply_transform": "core.transforms",
+    "invert_transform": "core.transforms",
+    "make_transform": "core.transforms",
+    "probe_to_reference": "core.transforms",
+    "pivot_calibration": "core.pivot",
+    # io: files
+    "PointFileError": "io.point_files",
+    "read_points": "io.point_files",
+    "write_points": "io.point_files",
+    "read_surface_points": "io.surface_files",
+    "read_surface_mesh": "io.surface_files",
+    "write_surface": "io.surface_files",
+    "tool_marker_geometry": "io.ndi_tools",
+    # image side
+    "CTVolume": "image.volume_io",
+    "load_volume": "image.volume_io",
+    "segment_bone": "image.ct_segmentation",
+    "bone_surface": "image.ct_segmentation",
+    "detect_marker_spheres": "image.marker_spheres",
+    "order_to_tool": "image.marker_spheres",
+    "process_ct": "image.ct_pipeline",
+    # simulation
+    "make_ct_phantom": "simulation.ct_phantom",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -10,19 +10,20 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .ct_phantom import make_ct_phantom, write_phantom
-from .ct_pipeline import process_ct
-from .ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
-from .demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
-from .experiment_report import write_outputs
-from .experiments import EXPERIMENTS, run_experiments
-from .package_data import BONES, DEFAULT_REFERENCE_TOOL, shipped_patient, tool_marker_geometry
-from .point_files import POINT_SUFFIXES, _suffix, read_points, write_points
-from .registration import METHODS, POLICIES, register
-from .surface_files import read_surface_points, write_surface
-from .surface_index import SurfaceIndex
-from .sweep import make_scales
-from .volume_io import CTVolume, load_volume, save_nrrd
+from .core.registration import METHODS, POLICIES, register
+from .core.surface_index import SurfaceIndex
+from .core.sweep import make_scales
+from .experiments.demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
+from .experiments.experiment_report import write_outputs
+from .experiments.experiments import EXPERIMENTS, run_experiments
+from .image.ct_pipeline import process_ct
+from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
+from .image.volume_io import CTVolume, load_volume, save_nrrd
+from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from .io.point_files import POINT_SUFFIXES, _suffix, read_points, write_points
+from .io.surface_files import read_surface_points, write_surface
+from .simulation.ct_phantom import make_ct_phantom, write_phantom
+from .simulation.package_data import BONES, shipped_patient
 
 EXIT_BAD_INPUT = 2
 
@@ -327,7 +328,7 @@ def _run_live_demo(arguments):
         ) from None
     from OpenIGTLinkBridgeLib.live_demo import run_live_demo
 
-    from .demo import PROBE_NOISE_MM, ct_image_side
+    from .experiments.demo import PROBE_NOISE_MM, ct_image_side
 
     clock = time.perf_counter()
     patient, vertices, triangles = shipped_patient(arguments.bone, arguments.seed)

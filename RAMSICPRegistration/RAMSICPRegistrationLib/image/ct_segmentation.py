@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .vtk_arrays import image_data
+from ..io.vtk_arrays import image_data
 
 logger = logging.getLogger(__name__)
 

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from ..core.metrics import target_registration_error
+from ..core.paired_point import rigid_procrustes
+from ..core.surface_index import SurfaceIndex
+from ..simulation.package_data import bone_mesh, shipped_patient
+from ..simulation.virtual_patient import VirtualPatient
 from .demo import ct_image_side
-from .metrics import target_registration_error
-from .package_data import bone_mesh, shipped_patient
-from .paired_point import rigid_procrustes
-from .surface_index import SurfaceIndex
 from .trials import evaluate_trial
-from .virtual_patient import VirtualPatient
 
 logger = logging.getLogger(__name__)
 

@@ -7,11 +7,11 @@ step through ``NavigationLogic`` and checks each against the known truth, raisin
 
 import numpy as np
 
+from ..core.transforms import apply_transform, invert_transform, make_transform, probe_to_reference, rotation_about_axis
+from ..simulation.ct_phantom import make_ct_phantom
+from ..simulation.package_data import shipped_patient
 from . import mrml_nodes
-from .ct_phantom import make_ct_phantom
 from .navigation import NavigationLogic, matrix_of, set_matrix
-from .package_data import shipped_patient
-from .transforms import apply_transform, invert_transform, make_transform, probe_to_reference, rotation_about_axis
 
 TIP_IN_PROBE = np.array([0.0, 0.0, 150.0])
 

@@ -15,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.pivot import pivot_calibration
+from ..core.registration import register
+from ..core.robot import image_to_robot_base, robot_base_to_tracker
+from ..core.surface_index import SurfaceIndex
+from ..core.transforms import apply_transform
+from ..image.ct_pipeline import process_ct
+from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
+from ..image.volume_io import load_volume
+from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from ..io.point_files import write_points
 from . import mrml_nodes
-from .ct_pipeline import process_ct
-from .ct_segmentation import DEFAULT_THRESHOLD_HU
-from .package_data import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
-from .pivot import pivot_calibration
-from .point_files import write_points
-from .registration import register
-from .robot import image_to_robot_base, robot_base_to_tracker
-from .surface_index import SurfaceIndex
-from .transforms import apply_transform
-from .volume_io import load_volume
 
 logger = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .validation import as_points
+from ..core.validation import as_points
 
 SPACES = ("RAS", "LPS")
 _RAS_FROM_LPS = np.array([-1.0, -1.0, 1.0])

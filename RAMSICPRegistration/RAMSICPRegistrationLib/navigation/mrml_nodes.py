@@ -11,8 +11,8 @@ Nothing here reaches for ``slicer.mrmlScene``: every function takes the scene it
 
 import numpy as np
 
-from .package_data import MARKER_DIAMETER_MM
-from .vtk_arrays import image_data, poly_data
+from ..io.ndi_tools import MARKER_DIAMETER_MM
+from ..io.vtk_arrays import image_data, poly_data
 
 
 def volume_node(scene, volume, name, labelmap=False):

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize
 
+from ..core.paired_point import rigid_procrustes
+from ..core.transforms import apply_transform
+from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .ct_segmentation import iso_surface
-from .package_data import MARKER_DIAMETER_MM
-from .paired_point import rigid_procrustes
-from .transforms import apply_transform
 
 logger = logging.getLogger(__name__)
 

@@ -22,11 +22,11 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from .package_data import MARKER_DIAMETER_MM
-from .transforms import apply_transform
+from ..core.transforms import apply_transform
+from ..image.volume_io import CTVolume
+from ..io.ndi_tools import MARKER_DIAMETER_MM
+from ..io.vtk_arrays import poly_data
 from .virtual_patient import sample_surface
-from .volume_io import CTVolume
-from .vtk_arrays import poly_data
 
 logger = logging.getLogger(__name__)
 
@@ -156,8 +156,8 @@ def write_phantom(directory, volume, truth):
     import json
     from pathlib import Path
 
-    from .surface_files import write_surface
-    from .volume_io import save_nrrd
+    from ..image.volume_io import save_nrrd
+    from ..io.surface_files import write_surface
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

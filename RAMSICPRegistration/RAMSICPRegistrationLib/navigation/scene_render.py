@@ -3,8 +3,8 @@ and the marker spheres, as the surgeon sees them in Slicer's 3-D view."""
 
 import numpy as np
 
-from .package_data import MARKER_DIAMETER_MM
-from .vtk_arrays import poly_data
+from ..io.ndi_tools import MARKER_DIAMETER_MM
+from ..io.vtk_arrays import poly_data
 
 #: Residuals from 0 (green) to this (red), mm.
 RESIDUAL_SCALE_MM = 1.0

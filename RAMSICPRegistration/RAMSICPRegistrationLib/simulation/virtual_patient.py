@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import target_registration_error
-from .paired_point import rigid_procrustes
-from .transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
+from ..core.metrics import target_registration_error
+from ..core.paired_point import rigid_procrustes
+from ..core.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
 
 PAPER_IPC_POINTS = 194_568
 

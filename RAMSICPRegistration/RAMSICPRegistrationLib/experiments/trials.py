@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .registration import POLICIES, register, select_scale
+from ..core.registration import POLICIES, register, select_scale
 
 
 @dataclass(frozen=True)

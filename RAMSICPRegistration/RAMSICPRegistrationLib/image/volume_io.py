@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .point_files import PointFileError
+from ..io.point_files import PointFileError
 
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 VOLUME_SUFFIXES = (".nrrd", ".nhdr", ".nii", ".nii.gz")

@@ -1,13 +1,12 @@
-"""Real data shipped inside the package (installed with it, so the demo runs after a plain pip install).
+"""Bone meshes shipped inside the package (installed with it, so the demo runs after a plain pip install).
 
-* Visible Human Female tibiae and right fibula (University of Denver, CC BY 4.0; see ``data/licenses``).
-* NDI passive tool marker geometries typed from PLUS Toolkit's ``.rom`` files (BSD-3-Clause).
+Visible Human Female tibiae and right fibula (University of Denver, CC BY 4.0; see ``data/licenses``).
+The NDI tool geometries live in ``io.ndi_tools``, where the image side can read them too.
 """
 
-import json
 from pathlib import Path
 
-import numpy as np
+from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 
@@ -18,12 +17,6 @@ BONES = {
     "right-fibula": {"file": "VHF_Right_Bone_Fibula_smooth.stl", "medial": (-1.0, 0.0, 0.0)},
 }
 
-#: NDI reference body used by the demo: passive 4-marker tool 8700339.
-DEFAULT_REFERENCE_TOOL = "8700339"
-
-#: Diameter of NDI passive marker spheres (mm), as in the paper.
-MARKER_DIAMETER_MM = 11.5
-
 
 def bone_mesh_path(name):
     """Path of a shipped bone mesh (a key of ``BONES``); the file's frame is RAS, in mm."""
@@ -32,17 +25,9 @@ def bone_mesh_path(name):
     return DATA_DIR / BONES[name]["file"]
 
 
-def tool_marker_geometry(tool_id=DEFAULT_REFERENCE_TOOL):
-    """Marker centres (K, 3) in mm in the NDI tool's own frame, from ``ndi_passive_tools.json``."""
-    tools = json.loads((DATA_DIR / "ndi_passive_tools.json").read_text(encoding="utf-8"))["tools"]
-    if tool_id not in tools:
-        raise ValueError(f"NDI tool {tool_id!r}: known tools are {', '.join(tools)}")
-    return np.array(tools[tool_id]["markers"], dtype=np.float64)
-
-
 def bone_mesh(name):
     """Vertices (V, 3) in RAS mm and triangles (K, 3) of a shipped bone mesh."""
-    from .surface_files import read_surface_mesh
+    from ..io.surface_files import read_surface_mesh
 
     return read_surface_mesh(bone_mesh_path(name), untagged_space="RAS")
 

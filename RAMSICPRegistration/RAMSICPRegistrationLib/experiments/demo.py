@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .ct_phantom import make_ct_phantom, signed_distance_to_mesh
-from .ct_pipeline import process_ct
-from .package_data import shipped_patient
-from .registration import DEFAULT_SCALE
-from .surface_index import SurfaceIndex
+from ..core.registration import DEFAULT_SCALE
+from ..core.surface_index import SurfaceIndex
+from ..image.ct_pipeline import process_ct
+from ..simulation.ct_phantom import make_ct_phantom, signed_distance_to_mesh
+from ..simulation.package_data import shipped_patient
 from .trials import evaluate_trial
 
 logger = logging.getLogger(__name__)
@@ -218,9 +218,9 @@ def ct_image_side(patient, vertices, triangles, seed, report):
 
 
 def _screenshot(path, index, side, patient, data):
-    from .registration import register
-    from .scene_render import render_registration
-    from .transforms import apply_transform
+    from ..core.registration import register
+    from ..core.transforms import apply_transform
+    from ..navigation.scene_render import render_registration
 
     result = register(
         index,
