@@ -46,6 +46,7 @@ _EXPORTS = {
     "fle_from_fre": "core.metrics",
     "predicted_tre": "core.metrics",
     "target_registration_error": "core.metrics",
+    "DEFAULT_METHOD": "core.registration",
     "DEFAULT_SCALE": "core.registration",
     "METHODS": "core.registration",
     "POLICIES": "core.registration",

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .core.registration import METHODS, POLICIES, register
+from .core.registration import DEFAULT_METHOD, METHODS, POLICIES, register
 from .core.surface_index import SurfaceIndex
 from .core.sweep import make_scales
 from .experiments.demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
@@ -65,7 +65,7 @@ def _parser():
     reg.add_argument("--markers-patient", required=True, help="the same centres in reference coordinates")
     reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
     reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
-    reg.add_argument("--method", choices=METHODS, default="cr-ramsicp")
+    reg.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
     how = reg.add_mutually_exclusive_group()
     how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5)")
     how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy")

@@ -21,6 +21,9 @@ logger = logging.getLogger(__name__)
 
 METHODS = ("cr", "cr-icp", "cr-ramsicp")
 
+#: The method the command line, the demo, the Slicer module and the scenarios use unless told otherwise.
+DEFAULT_METHOD = "cr-ramsicp"
+
 #: How L is chosen from a sweep.
 #: ``targets``: the paper's choice, the L of minimum TRE (needs targets: evaluation only).
 #: ``fixed``: ``DEFAULT_SCALE`` (or the given one) from the sweep.

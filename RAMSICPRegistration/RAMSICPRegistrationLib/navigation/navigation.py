@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.pivot import pivot_calibration
-from ..core.registration import register
+from ..core.registration import DEFAULT_METHOD, register
 from ..core.robot import image_to_robot_base, robot_base_to_tracker
 from ..core.surface_index import SurfaceIndex
 from ..core.transforms import apply_transform
@@ -218,7 +218,7 @@ class NavigationLogic:
         markers_patient_node,
         targets_image_node=None,
         targets_patient_node=None,
-        method="cr-ramsicp",
+        method=DEFAULT_METHOD,
         sweep=True,
         scale=None,
         policy=None,
