@@ -1,12 +1,18 @@
 """OpenIGTLinkBridge: the live tracker feed in Slicer (NDI tracker -> OpenIGTLink with PLUS names -> transform nodes).
 
-A thin shell over ``OpenIGTLinkBridgeLib.receiver.TrackerReceiver``: a timer polls it, labels show each tool's
-status (valid, missing, stale, disconnected), and ``ProbeToReference`` (paper eq. 2) is kept up to date for the
-RAMSICPRegistration module. Nodes that SlicerOpenIGTLink already feeds under the same names are reused.
+A thin shell over ``OpenIGTLinkBridgeLib.bridge_controller.BridgeController`` (Qt-free, tested on slicer-core): a
+timer asks it to poll, labels show each tool's status (valid, missing, stale, disconnected), and
+``ProbeToReference`` (paper eq. 2) is kept up to date for the RAMSICPRegistration module. The tracker can be an
+OpenIGTLink server already running (PLUS, ``ramsicp-tracker-server``) or be started here.
 """
+
+from typing import Annotated
 
 import qt
 import slicer
+from slicer.i18n import tr as _
+from slicer.i18n import translate
+from slicer.parameterNodeWrapper import Choice, WithinRange, parameterNodeWrapper
 from slicer.ScriptedLoadableModule import (
     ScriptedLoadableModule,
     ScriptedLoadableModuleLogic,
@@ -15,22 +21,48 @@ from slicer.ScriptedLoadableModule import (
 )
 from slicer.util import VTKObservationMixin
 
+from OpenIGTLinkBridgeLib.bridge_controller import SOURCES, BridgeController
+
 POLL_INTERVAL_MS = 20
+
+#: PLACEHOLDER until publication: the same address as EXTENSION_HOMEPAGE in the top-level CMakeLists.txt.
+DOCUMENTATION_URL = "https://example.invalid/RAMSICPNavigator#live-tracker-feed"
+
+#: Push button -> controller action.
+BUTTON_ACTIONS = {
+    "connectButton": "connect",
+    "disconnectButton": "disconnect",
+    "stopTrackerButton": "stop_tracker",
+}
 
 
 class OpenIGTLinkBridge(ScriptedLoadableModule):
     def __init__(self, parent):
         ScriptedLoadableModule.__init__(self, parent)
-        self.parent.title = "OpenIGTLink Bridge"
-        self.parent.categories = ["IGT"]
+        self.parent.title = _("OpenIGTLink Bridge")
+        self.parent.categories = [translate("qSlicerAbstractCoreModule", "IGT")]
         self.parent.dependencies = []
         self.parent.contributors = ["RAMSICP Navigator developers"]
         self.parent.helpText = (
-            "Receives ProbeToTracker and ReferenceToTracker over OpenIGTLink (PLUS names, port 18944), keeps "
-            "ProbeToReference = inv(ReferenceToTracker) * ProbeToTracker up to date and shows each tool's status. "
-            "Start the server with: ramsicp-tracker-server --ndi HOST (or --serial DEV, or --simulate)."
+            _(
+                "Receives ProbeToTracker and ReferenceToTracker over OpenIGTLink (PLUS names, port 18944), keeps "
+                "ProbeToReference = inv(ReferenceToTracker) * ProbeToTracker up to date and shows each tool's status. "
+                "Connect to a running server (PLUS, or ramsicp-tracker-server from 'pip install ramsicp-navigator'), "
+                "or start an NDI Vega, an NDI Polaris or the simulator from this module."
+            )
+            + f' <a href="{DOCUMENTATION_URL}">{_("Documentation")}</a>'
         )
-        self.parent.acknowledgementText = "NDI tool geometries: PLUS Toolkit, BSD-3-Clause."
+        self.parent.acknowledgementText = _("NDI tool geometries: PLUS Toolkit, BSD-3-Clause.")
+
+
+@parameterNodeWrapper
+class OpenIGTLinkBridgeParameterNode:
+    """The fields of ``OpenIGTLinkBridgeLib.bridge_controller.BRIDGE``, which the controller reads."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, WithinRange(1, 65535)] = 18944
+    trackerSource: Annotated[str, Choice(list(SOURCES))] = "ndi-network"
+    trackerAddress: str = ""
 
 
 class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
@@ -38,7 +70,9 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         ScriptedLoadableModuleWidget.__init__(self, parent)
         VTKObservationMixin.__init__(self)
         self.logic = None
-        self.timer = qt.QTimer()
+        self._parameterNode = None
+        self._parameterNodeGuiTag = None
+        self._timer = None
 
     def setup(self):
         ScriptedLoadableModuleWidget.setup(self)
@@ -47,57 +81,99 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         self.ui = slicer.util.childWidgetVariables(uiWidget)
         uiWidget.setMRMLScene(slicer.mrmlScene)
         self.logic = OpenIGTLinkBridgeLogic()
-        self.ui.connectButton.connect("toggled(bool)", self.onConnectToggled)
-        self.timer.setInterval(POLL_INTERVAL_MS)
-        self.timer.connect("timeout()", self.onTimer)
+        self.addObserver(slicer.mrmlScene, slicer.mrmlScene.StartCloseEvent, self.onSceneStartClose)
+        self.addObserver(slicer.mrmlScene, slicer.mrmlScene.EndCloseEvent, self.onSceneEndClose)
+        for button, action in BUTTON_ACTIONS.items():
+            getattr(self.ui, button).connect("clicked(bool)", lambda checked, action=action: self.run(action))
+        self.ui.startTrackerButton.connect("clicked(bool)", self.onStartTracker)
+        # The feed keeps running while other modules are shown: the timer runs from setup to cleanup.
+        self._timer = qt.QTimer(self.parent)
+        self._timer.setInterval(POLL_INTERVAL_MS)
+        self._timer.connect("timeout()", self.onTimer)
+        self._timer.start()
+        self.initializeParameterNode()
 
     def cleanup(self):
-        self.timer.stop()
-        self.logic.disconnect()
+        if self._timer is not None:
+            self._timer.stop()
+        self.removeObservers()
+        if self.logic is not None:
+            self.logic.controller.close()
 
-    def onConnectToggled(self, connect):
-        if connect:
-            with slicer.util.tryWithErrorDisplay("Could not start the tracker feed."):
-                self.logic.connect(self.ui.hostLineEdit.text, int(self.ui.portSpinBox.value))
-                self.timer.start()
-                self.ui.connectButton.text = "Disconnect"
-        else:
-            self.timer.stop()
-            self.logic.disconnect()
-            self.ui.connectButton.text = "Connect"
-            self.onTimer()
+    def enter(self):
+        self.initializeParameterNode()
+
+    def exit(self):
+        self.setParameterNode(None)
+
+    def onSceneStartClose(self, caller, event):
+        self.setParameterNode(None)
+
+    def onSceneEndClose(self, caller, event):
+        if self.parent.isEntered:
+            self.initializeParameterNode()
+
+    def initializeParameterNode(self):
+        self.setParameterNode(self.logic.getParameterNode())
+
+    def setParameterNode(self, inputParameterNode):
+        if self._parameterNode:
+            self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
+            self._parameterNodeGuiTag = None
+        self._parameterNode = inputParameterNode
+        if self._parameterNode:
+            self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
+
+    def run(self, action):
+        with slicer.util.tryWithErrorDisplay(_("Unexpected error; the details are in the log."), waitCursor=True):
+            self.logic.controller.run(action)
+        self.showStatus()
+
+    def onStartTracker(self):
+        """Install a package the chosen tracker needs (pyserial for a Polaris) right before its first use."""
+        missing = self.logic.controller.missing_packages()
+        if missing:
+            if not slicer.util.confirmOkCancelDisplay(
+                _("This tracker needs the Python package(s) {packages}. Install them now (internet needed)?").format(
+                    packages=", ".join(missing)
+                ),
+                windowTitle=_("OpenIGTLink Bridge"),
+            ):
+                return
+            failed = _("Installing {packages} failed.").format(packages=", ".join(missing))
+            with slicer.util.tryWithErrorDisplay(failed):
+                slicer.util.pip_install(" ".join(missing))
+        self.run("start_tracker")
 
     def onTimer(self):
-        if self.logic.receiver is not None:
-            self.logic.receiver.poll()
-        self.ui.referenceStatusLabel.text = f"ReferenceToTracker: {self.logic.status('ReferenceToTracker')}"
-        self.ui.probeStatusLabel.text = f"ProbeToTracker: {self.logic.status('ProbeToTracker')}"
+        self.logic.controller.poll()
+        if self.parent.isEntered:
+            self.showStatus()
+
+    def showStatus(self):
+        status = self.logic.controller.status()
+        self.ui.connectionStatusLabel.text = status.connection
+        tools = dict(status.tools)
+        self.ui.referenceStatusLabel.text = f"ReferenceToTracker: {tools['ReferenceToTracker']}"
+        self.ui.probeStatusLabel.text = f"ProbeToTracker: {tools['ProbeToTracker']}"
+        self.ui.trackerStatusLabel.text = status.tracker
+        self.ui.messageLabel.text = status.message
+        self.ui.messageLabel.styleSheet = "color: #c62828" if status.message_is_error else ""
 
 
 class OpenIGTLinkBridgeLogic(ScriptedLoadableModuleLogic):
-    """Facade over the Qt-free receiver, on Slicer's scene."""
+    """Facade: the module's parameter node and the Qt-free controller on Slicer's scene."""
 
     def __init__(self):
         ScriptedLoadableModuleLogic.__init__(self)
-        self.receiver = None
+        self.controller = BridgeController(slicer.mrmlScene)
 
-    def connect(self, host, port):
-        from OpenIGTLinkBridgeLib.receiver import TrackerReceiver
-
-        self.disconnect()
-        self.receiver = TrackerReceiver(slicer.mrmlScene, host=host, port=port)
-
-    def disconnect(self):
-        if self.receiver is not None:
-            self.receiver.close()
-            self.receiver = None
-
-    def status(self, device):
-        return "disconnected" if self.receiver is None else self.receiver.status(device)
+    def getParameterNode(self):
+        return OpenIGTLinkBridgeParameterNode(super().getParameterNode())
 
 
 class OpenIGTLinkBridgeTest(ScriptedLoadableModuleTest):
-    """Simulator -> driver -> server -> this module's receiver, inside Slicer."""
+    """Simulator -> driver -> server -> this module's controller and receiver, inside Slicer."""
 
     def runTest(self):
         slicer.mrmlScene.Clear()
@@ -106,25 +182,18 @@ class OpenIGTLinkBridgeTest(ScriptedLoadableModuleTest):
     def test_live_feed(self):
         import time
 
-        import numpy as np
-
-        from OpenIGTLinkBridgeLib.igtl_server import TrackerServer
-        from OpenIGTLinkBridgeLib.live_scenario import demo_simulator
-        from OpenIGTLinkBridgeLib.ndi_driver import open_tracker
-
-        simulator, script = demo_simulator(np.zeros((2, 3)))
-        simulator.start()
-
-        server = TrackerServer(lambda: open_tracker("127.0.0.1", simulator.address[1]), port=0).start()
         logic = OpenIGTLinkBridgeLogic()
-        logic.connect("127.0.0.1", server.address[1])
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
-            logic.receiver.poll()
-            slicer.app.processEvents()
-        self.assertEqual(logic.status("ProbeToTracker"), "valid")
-        self.assertIsNotNone(slicer.mrmlScene.GetFirstNodeByName("ProbeToReference"))
-        logic.disconnect()
-        server.stop()
-        simulator.stop()
-        self.delayDisplay("Live tracker feed test passed")
+        parameters = logic.controller.parameters
+        parameters.trackerSource = "simulator"
+        parameters.port = 18999
+        try:
+            logic.controller.start_tracker()
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end and dict(logic.controller.status().tools)["ProbeToTracker"] != "valid":
+                logic.controller.poll()
+                slicer.app.processEvents()
+            self.assertEqual(dict(logic.controller.status().tools)["ProbeToTracker"], "valid")
+            self.assertIsNotNone(slicer.mrmlScene.GetFirstNodeByName("ProbeToReference"))
+        finally:
+            logic.controller.close()
+        self.delayDisplay(_("Live tracker feed test passed"))

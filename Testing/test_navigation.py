@@ -1,6 +1,8 @@
 """The Slicer module's workflow, step by step, on real MRML (slicer-core) and the tibia CT phantom.
 
-The probe is simulated as SlicerIGT's self-tests do: by writing matrices into the transform hierarchy.
+The workflow runs through the shared scenario (the module's self-test) on the controller; the probe is simulated
+as SlicerIGT's self-tests do, by writing matrices into the transform nodes. The controller's event handling has
+its own tests in ``test_controller.py``.
 """
 
 import json
@@ -8,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD
 from RAMSICPRegistrationLib.core.transforms import (
     apply_transform,
     invert_transform,
@@ -24,24 +27,13 @@ from RAMSICPRegistrationLib.navigation.scenarios import TIP_IN_PROBE, check_work
 TIP = TIP_IN_PROBE  # probe tip offset in the probe frame (mm)
 
 
-class FakeClock:
-    """A clock the test moves by hand, for the stale-tracking checks."""
-
-    def __init__(self):
-        self.now = 100.0
-
-    def __call__(self):
-        return self.now
-
-
 @pytest.fixture(scope="module")
 def workflow(tibia_phantom, tibia_patient, tmp_path_factory):
     """Steps 1-4 run once on the phantom through the shared scenario; the tests below check each step."""
     volume, truth = tibia_phantom
     folder = tmp_path_factory.mktemp("autosave")
-    clock = FakeClock()
-    state = run_workflow(headless_scene(), tibia_patient, volume, truth, autosave_directory=folder, clock=clock)
-    return {**state, "clock": clock, "folder": folder}
+    state = run_workflow(headless_scene(), tibia_patient, volume, truth, autosave_directory=folder)
+    return {**state, "folder": folder}
 
 
 def test_the_slicer_self_test_scenario_passes(workflow):
@@ -70,41 +62,24 @@ def test_step2_hierarchy_and_pivot(workflow):
 def test_step3_points_are_collected_and_saved_at_once(workflow):
     ppc_node, trial = workflow["nodes"]["ppc"], workflow["trial"]
     np.testing.assert_allclose(mrml_nodes.fiducial_positions(ppc_node), trial.ppc, atol=1e-9)
-    saved = json.loads((workflow["folder"] / "PPC.mrk.json").read_text())
+    saved = json.loads((workflow["folder"] / "ProbePoints.mrk.json").read_text())
     assert len(saved["markups"][0]["controlPoints"]) == len(trial.ppc)
     markers_patient = mrml_nodes.fiducial_positions(workflow["nodes"]["markers_patient"])
     np.testing.assert_allclose(markers_patient, workflow["patient"].markers_reference)  # the tool geometry
 
 
-def test_step3_auto_collect_and_stale_probe(workflow):
-    logic, nodes, clock = workflow["logic"], workflow["nodes"], workflow["clock"]
-    scene = workflow["scene"]
-    points = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "AutoPoints")
-    set_matrix(nodes["probe"], make_transform(translation=(0.0, 0.0, -150.0)))
-    logic.note_update(nodes["probe"])
-    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) == 0
-    set_matrix(nodes["probe"], make_transform(translation=(1.0, 0.0, -150.0)))  # 1 mm: too close
-    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) is None
-    set_matrix(nodes["probe"], make_transform(translation=(3.0, 0.0, -150.0)))
-    assert logic.collect_point(points, nodes["probe"], nodes["tip"], min_distance_mm=2.0) == 1
-    clock.now += 5.0  # the tracker stops sending
-    with pytest.raises(RuntimeError, match="ProbeToReference is not updating .* 5.0 s ago"):
-        logic.collect_point(points, nodes["probe"], nodes["tip"])
-    assert points.GetNumberOfControlPoints() == 2  # nothing collected was lost
-
-
 def test_step4_registration_result_nodes(workflow):
-    scene, result, patient = workflow["scene"], workflow["result"], workflow["patient"]
+    result, patient = workflow["result"], workflow["patient"]
     computed = matrix_of(workflow["nodes"]["reference_to_image"])
     np.testing.assert_allclose(computed, result.reference_to_image)
     targets = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image)
     errors = np.linalg.norm(apply_transform(computed, targets) - patient.targets_image, axis=1)
     assert errors.max() < 0.3  # automatic centres and exact touches: only the CT's own error remains
-    table = scene.GetFirstNodeByName("RegistrationResiduals")
-    assert table.GetNumberOfRows() == 40
-    chart = scene.GetFirstNodeByName("RegistrationSweep")
-    assert chart.GetNumberOfPlotSeriesNodes() == 1  # RMS (no targets given)
-    assert float(workflow["logic"].parameter_node.GetParameter("FreMm")) == pytest.approx(result.fre_mm)
+    parameters = workflow["controller"].parameters
+    assert parameters.residualTable.GetNumberOfRows() == 40
+    assert parameters.sweepChart.GetNumberOfPlotSeriesNodes() == 1  # RMS (no targets given)
+    assert parameters.referenceToImage is workflow["nodes"]["reference_to_image"]
+    assert float(parameters.node.GetParameter("FreMm")) == pytest.approx(result.fre_mm)
 
 
 def test_step4_excluding_a_point_reruns_without_it(workflow):
@@ -112,7 +87,7 @@ def test_step4_excluding_a_point_reruns_without_it(workflow):
     logic.set_included(7, False)
     result = logic.register(image.ipc_model, nodes["ppc"], image.markers_image, nodes["markers_patient"])
     assert len(result.residuals_mm) == 39
-    table = workflow["scene"].GetFirstNodeByName("RegistrationResiduals").GetTable()
+    table = workflow["controller"].parameters.residualTable.GetTable()
     assert np.isnan(table.GetColumnByName("residual_mm").GetValue(7))
     assert table.GetColumnByName("include").GetValue(7) == 0
     logic.set_included(7, True)
@@ -159,12 +134,13 @@ def test_step7_save_and_reload_reproduce_the_registration(workflow, tmp_path):
     again = NavigationLogic(reloaded)
     result = again.register(
         reloaded.GetFirstNodeByName("IPC"),
-        reloaded.GetFirstNodeByName("PPC"),
+        reloaded.GetFirstNodeByName("ProbePoints"),
         reloaded.GetFirstNodeByName("MarkersImage"),
         reloaded.GetFirstNodeByName("MarkersPatient"),
     )
     np.testing.assert_allclose(result.reference_to_image, before.reference_to_image, rtol=0, atol=1e-9)
-    assert again.parameter_node.GetParameter("Method") == "cr-ramsicp"
+    assert again.parameter_node.GetParameter("Method") == DEFAULT_METHOD
+    assert again.parameters.referenceToImage.GetName() == "ReferenceToImage"  # the references survive a reload
 
 
 def test_bad_nodes_and_inputs_say_what_to_do(workflow):

@@ -9,9 +9,11 @@ a broken stream (bad header) resets the connection.
 """
 
 import errno
+import ipaddress
 import logging
 import select
 import socket
+import threading
 import time
 
 import numpy as np
@@ -59,6 +61,8 @@ class TrackerReceiver:
         self.last_status = None
         self._next_attempt = 0.0
         self._pending = None  # a connection attempt in progress
+        self._resolution = None  # {"address": ...} or {"error": ...}, filled by a resolver thread for a host name
+        self.resolution_error = None  # why the host name could not be resolved at the last attempt
         self.on_update = None  # optional callable(device, matrix, timestamp_s) after each valid transform
 
     # -- connection ----------------------------------------------------------------------------------------
@@ -66,15 +70,45 @@ class TrackerReceiver:
     def connected(self):
         return self.socket is not None
 
+    def _address(self):
+        """The server's IPv4 address, or None while a host name is being resolved in a background thread (name
+        resolution can take seconds, and this runs on Slicer's GUI thread)."""
+        try:
+            return str(ipaddress.IPv4Address(self.host))
+        except ValueError:
+            pass
+        if self._resolution is None:
+            resolution = self._resolution = {}
+
+            def resolve():
+                try:
+                    resolution["address"] = socket.gethostbyname(self.host)
+                except OSError as error:
+                    resolution["error"] = f"cannot resolve the host name {self.host!r} ({error})"
+
+            threading.Thread(target=resolve, name="resolve OpenIGTLink host", daemon=True).start()
+        if "error" in self._resolution:  # try again at the next interval: the network may come back
+            if self.resolution_error != self._resolution["error"]:
+                logger.warning("%s", self._resolution["error"])
+            self.resolution_error, self._resolution = self._resolution["error"], None
+            self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
+            return None
+        if "address" in self._resolution:
+            self.resolution_error = None
+        return self._resolution.get("address")
+
     def _connect(self):
         """Advance a non-blocking connection attempt; never blocks the caller (Slicer's GUI thread)."""
         if self._pending is None:
             if self.clock() < self._next_attempt:
                 return False
+            address = self._address()
+            if address is None:
+                return False
             self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
             pending = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             pending.setblocking(False)
-            error = pending.connect_ex((self.host, self.port))
+            error = pending.connect_ex((address, self.port))
             if error not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
                 pending.close()
                 return False

@@ -67,6 +67,7 @@ _EXPORTS = {
     "PointFileError": "io.point_files",
     "read_points": "io.point_files",
     "write_points": "io.point_files",
+    "write_points_atomic": "io.point_files",
     "read_surface_points": "io.surface_files",
     "read_surface_mesh": "io.surface_files",
     "write_surface": "io.surface_files",

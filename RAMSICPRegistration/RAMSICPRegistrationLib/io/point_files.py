@@ -8,6 +8,7 @@ files that cannot state it (``.npy``, text files without the comment) are taken 
 
 import csv
 import json
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -108,6 +109,33 @@ def write_points(path, points, labels=None):
         np.save(path, points)
     else:
         raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
+
+
+def write_points_atomic(path, points, labels=None):
+    """``write_points``, but a crash at any moment leaves either the previous complete file or the new one.
+
+    The points go to a temporary file beside ``path``, which is flushed to the disk and then renamed over
+    ``path`` (``os.replace`` is atomic on POSIX and Windows); the folder is created when missing. Used for the
+    autosave of every collected point, so a killed process or a power cut never leaves half a file.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    suffix = _suffix(path)
+    temporary = path.with_name(f".{path.name[: len(path.name) - len(suffix)]}.partial{suffix}")
+    try:
+        write_points(temporary, points, labels)
+        with open(temporary, "rb+") as stream:
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    if hasattr(os, "O_DIRECTORY"):  # make the rename itself durable (POSIX)
+        folder = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            os.fsync(folder)
+        finally:
+            os.close(folder)
 
 
 def _suffix(path):

@@ -1,4 +1,4 @@
-"""The RAMSICPRegistration module's logic: the surgeon's workflow on MRML nodes passed in (no Qt, no globals).
+"""The workflow's steps on MRML nodes passed in (no Qt, no globals); ``controller.NavigationController`` drives them.
 
 Steps, as in the module's GUI: (1) image: CT -> segmentation, IPC model, marker fiducials; (2) tracker: the
 transform hierarchy ``ProbeTipToProbe -> ProbeToReference -> ReferenceToImage`` and pivot calibration;
@@ -6,10 +6,13 @@ transform hierarchy ``ProbeTipToProbe -> ProbeToReference -> ReferenceToImage`` 
 CR / CR-ICP / CR-RAMSICP, the result as the ``ReferenceToImage`` transform, a residual table with an include
 column, and a plot of the sweep; (5) verify: target TRE and the live tip-to-surface distance; (6) robot: eqs.
 3-4; (7) save and reload the scene. It works on any real MRML scene: Slicer's, or ``slicer-core``'s.
+
+Each step records the nodes it writes in the module's parameter node (``parameters.PARAMETERS``), so later steps
+and every shell find them by reference, never by name. What follows a tracked tool over time (stale detection,
+pivot recording, auto-collect, live readouts) lives in the controller, which observes the nodes' events.
 """
 
 import logging
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,14 +27,11 @@ from ..image.ct_pipeline import process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
 from ..image.volume_io import load_volume
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
-from ..io.point_files import write_points
+from ..io.point_files import write_points_atomic
 from . import mrml_nodes
+from .parameters import Parameters, get_parameter_node
 
 logger = logging.getLogger(__name__)
-
-PARAMETER_NODE_NAME = "RAMSICPRegistration"
-#: Seconds without a new pose after which a tracked transform counts as stale (as SlicerIGT's Watchdog).
-STALE_AFTER_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -79,30 +79,28 @@ def points_of(node, name="point list"):
 
 
 class NavigationLogic:
-    """The workflow's logic on one MRML scene.
+    """The workflow's steps on one MRML scene.
 
     Args:
         scene: the vtkMRMLScene (``slicer.mrmlScene`` inside Slicer).
-        autosave_directory: every collected probe point is written here at once (``<node name>.mrk.json``).
-        clock: monotonic clock in seconds, for stale-tracking checks (injectable for tests).
+        autosave_directory: every collected point list is written here at once (``<node name>.mrk.json``).
     """
 
-    def __init__(self, scene, autosave_directory=None, clock=time.monotonic):
+    def __init__(self, scene, autosave_directory=None):
         self.scene = scene
         self.autosave_directory = None if autosave_directory is None else Path(autosave_directory)
-        self.clock = clock
-        self._last_update = {}
         self._index_cache = (None, None, None)
 
     # -- parameters ---------------------------------------------------------------------------------------
     @property
     def parameter_node(self):
-        """The module's ``vtkMRMLScriptedModuleNode``; saved and reloaded with the scene."""
-        node = self.scene.GetFirstNodeByName(PARAMETER_NODE_NAME)
-        if node is None:
-            node = self.scene.AddNewNodeByClass("vtkMRMLScriptedModuleNode", PARAMETER_NODE_NAME)
-            node.SetAttribute("ModuleName", PARAMETER_NODE_NAME)
-        return node
+        """The module's singleton ``vtkMRMLScriptedModuleNode``; saved and reloaded with the scene."""
+        return get_parameter_node(self.scene)
+
+    @property
+    def parameters(self):
+        """Typed access to the parameter node (``parameters.Parameters``)."""
+        return Parameters(self.parameter_node)
 
     def transform_node(self, name):
         """The linear transform node called ``name``, created once, then reused (as SlicerOpenIGTLink does)."""
@@ -112,11 +110,19 @@ class NavigationLogic:
         return node
 
     # -- 1. image ------------------------------------------------------------------------------------------
-    def process_ct(self, volume_node, threshold_hu=DEFAULT_THRESHOLD_HU, tool_id=DEFAULT_REFERENCE_TOOL):
-        """CT volume node -> segmentation node, IPC model node and marker-centre fiducials (image, tool order)."""
+    def process_ct(self, volume_node, threshold_hu=DEFAULT_THRESHOLD_HU, tool_id=DEFAULT_REFERENCE_TOOL, progress=None):
+        """CT volume node -> segmentation node, IPC model node and marker-centre fiducials (image, tool order).
+
+        ``progress(step, done, total)`` is called between the steps; an exception it raises (a cancel) stops the
+        run before any node is written. Nodes written by an earlier run are replaced.
+        """
         volume = load_volume(volume_node)
-        image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id))
+        image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress)
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
+        parameters = self.parameters
+        for old in (parameters.segmentation, parameters.ipcModel, parameters.markersImage):
+            if old is not None:
+                self.scene.RemoveNode(old)
         segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, [s.label for s in spheres])
         ipc = mrml_nodes.model_node(self.scene, surface.points, surface.triangles, name="IPC")
         markers = mrml_nodes.fiducial_node(
@@ -125,15 +131,9 @@ class NavigationLogic:
             [f"M{i + 1} {s.status}" for i, s in enumerate(spheres)],
             name="MarkersImage",
         )
-        parameters = self.parameter_node
-        parameters.SetParameter("ThresholdHU", str(segmentation.threshold_hu))
-        for role, node in (
-            ("CT", volume_node),
-            ("IPC", ipc),
-            ("MarkersImage", markers),
-            ("Segmentation", segmentation_node),
-        ):
-            parameters.SetNodeReferenceID(role, node.GetID())
+        parameters.ctVolume = volume_node
+        parameters.thresholdHU = segmentation.threshold_hu
+        parameters.segmentation, parameters.ipcModel, parameters.markersImage = segmentation_node, ipc, markers
         return ImageSideNodes(segmentation_node, ipc, markers, image.warnings)
 
     # -- 2. tracker ----------------------------------------------------------------------------------------
@@ -155,20 +155,6 @@ class NavigationLogic:
         self.parameter_node.SetParameter("PivotRmsMm", f"{result.rms_mm:.6g}")
         return result
 
-    def note_update(self, node):
-        """Record that a tracked transform just received a pose (the widget calls this from a node observer)."""
-        self._last_update[node.GetID()] = self.clock()
-
-    def check_tracking(self, node, name="ProbeToReference"):
-        """Raise RuntimeError when ``node`` has had no new pose for ``STALE_AFTER_S`` seconds."""
-        last = self._last_update.get(node.GetID())
-        if last is None or self.clock() - last > STALE_AFTER_S:
-            age = "never" if last is None else f"{self.clock() - last:.1f} s ago"
-            raise RuntimeError(
-                f"{name} is not updating (last pose: {age}); check that the tracker sees the probe "
-                "and the reference body, then collect again"
-            )
-
     def tip_in_reference(self, probe_to_reference, probe_tip_to_probe):
         """Probe-tip position (3,) in reference coordinates: ProbeToReference @ ProbeTipToProbe @ origin (eq. 2)."""
         tip = matrix_of(probe_to_reference, "ProbeToReference") @ matrix_of(probe_tip_to_probe, "ProbeTipToProbe")
@@ -178,16 +164,16 @@ class NavigationLogic:
     def markers_patient_node(self, tool_id=DEFAULT_REFERENCE_TOOL):
         """Fiducials of the reference body's marker centres in reference coordinates, from the NDI tool geometry."""
         node = mrml_nodes.fiducial_node(self.scene, tool_marker_geometry(tool_id), name="MarkersPatient")
-        self.parameter_node.SetNodeReferenceID("MarkersPatient", node.GetID())
+        self.parameters.markersPatient = node
         return node
 
     def collect_point(self, points_node, probe_to_reference, probe_tip_to_probe, min_distance_mm=None):
         """Add the current tip position (reference coordinates) to ``points_node`` and save the list at once.
 
         With ``min_distance_mm`` (auto-collect) the point is only added if it lies at least that far from the
-        last one. Returns the new point's index, or None when auto-collect skipped it.
+        last one. Returns the new point's index, or None when auto-collect skipped it. Whether the tracker is
+        still sending is the caller's to check (the controller does, from the nodes' events).
         """
-        self.check_tracking(probe_to_reference)
         tip = self.tip_in_reference(probe_to_reference, probe_tip_to_probe)
         count = points_node.GetNumberOfControlPoints()
         if min_distance_mm is not None and count:
@@ -201,13 +187,9 @@ class NavigationLogic:
     def _autosave(self, node):
         if self.autosave_directory is None:
             return
-        self.autosave_directory.mkdir(parents=True, exist_ok=True)
         positions = mrml_nodes.fiducial_positions(node)
         labels = [node.GetNthControlPointLabel(i) for i in range(len(positions))]
-        path = self.autosave_directory / f"{node.GetName()}.mrk.json"
-        temporary = path.with_suffix(".tmp.json")
-        write_points(temporary, positions, labels)
-        temporary.replace(path)  # atomic: a crash leaves the previous complete file, never half a file
+        write_points_atomic(self.autosave_directory / f"{node.GetName()}.mrk.json", positions, labels)
 
     # -- 4. register ---------------------------------------------------------------------------------------
     def register(
@@ -259,14 +241,16 @@ class NavigationLogic:
             scale=scale if method == "cr-ramsicp" else None,
             policy=policy,
         )
-        reference_to_image = self.transform_node("ReferenceToImage")
+        parameters = self.parameters
+        reference_to_image = parameters.referenceToImage or self.transform_node("ReferenceToImage")
         set_matrix(reference_to_image, result.reference_to_image)
+        parameters.referenceToImage = reference_to_image
+        parameters.probePoints = ppc_node
         residuals = np.full(len(ppc_all), np.nan)
         residuals[include] = result.residuals_mm
         self._write_residual_table(ppc_node, ppc_all, residuals, include)
         if result.sweep:
             self._write_sweep_plot(result)
-        parameters = self.parameter_node
         for key, value in (
             ("Method", method),
             ("Scale", result.scale),
@@ -275,10 +259,8 @@ class NavigationLogic:
             ("PpcRmsMm", result.ppc_rms_mm),
             ("TreMm", result.tre_mm),
             ("Warnings", "\n".join(result.warnings)),
-        ):
-            parameters.SetParameter(key, "" if value is None else str(value))
-        for role, node in (("PPC", ppc_node), ("ReferenceToImage", reference_to_image)):
-            parameters.SetNodeReferenceID(role, node.GetID())
+        ):  # the result's figures, saved with the scene
+            parameters.node.SetParameter(key, "" if value is None else str(value))
         return result
 
     def _index(self, ipc_node, ipc):
@@ -289,7 +271,7 @@ class NavigationLogic:
         return self._index_cache[1]
 
     def _included(self, count):
-        table = self.scene.GetFirstNodeByName("RegistrationResiduals")
+        table = self.parameters.residualTable
         if table is None or table.GetNumberOfRows() != count:
             return np.ones(count, dtype=bool)
         column = table.GetTable().GetColumnByName("include")
@@ -297,9 +279,11 @@ class NavigationLogic:
 
     def set_included(self, point_index, included):
         """Include or exclude one probe point from the next registration (the table's 'include' cell)."""
-        table = self.scene.GetFirstNodeByName("RegistrationResiduals")
+        table = self.parameters.residualTable
         if table is None:
             raise ValueError("no residual table yet; register once first")
+        if not 0 <= point_index < table.GetNumberOfRows():
+            raise ValueError(f"point {point_index + 1}: the table has points 1 to {table.GetNumberOfRows()}")
         table.GetTable().GetColumnByName("include").SetValue(point_index, int(bool(included)))
         table.GetTable().Modified()
 
@@ -323,10 +307,10 @@ class NavigationLogic:
             included.InsertNextValue(int(include[row]))
         for array in (labels, *columns.values(), included):
             table.AddColumn(array)
-        node = self.scene.GetFirstNodeByName("RegistrationResiduals")
-        if node is None:
-            node = self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationResiduals")
+        parameters = self.parameters
+        node = parameters.residualTable or self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationResiduals")
         node.SetAndObserveTable(table)
+        parameters.residualTable = node
 
     def _write_sweep_plot(self, result):
         from vtkmodules.vtkCommonCore import vtkDoubleArray
@@ -341,17 +325,23 @@ class NavigationLogic:
                 value = {"L": entry.scale, "rms_mm": entry.result.rms_mm, "tre_mm": entry.tre_mm}[name]
                 array.InsertNextValue(value)
             table.AddColumn(array)
-        table_node = self.scene.GetFirstNodeByName("RegistrationSweepTable")
-        if table_node is None:
-            table_node = self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationSweepTable")
-        table_node.SetAndObserveTable(table)
-        chart = self.scene.GetFirstNodeByName("RegistrationSweep")
+        parameters = self.parameters
+        chart = parameters.sweepChart
         if chart is None:
             chart = self.scene.AddNewNodeByClass("vtkMRMLPlotChartNode", "RegistrationSweep")
             chart.SetXAxisTitle("scale factor L")
             chart.SetYAxisTitle("mm")
+            parameters.sweepChart = chart
+        series_by_column = {}
+        for index in range(chart.GetNumberOfPlotSeriesNodes()):
+            series = chart.GetNthPlotSeriesNode(index)
+            series_by_column[series.GetYColumnName()] = series
+        table_node = next((s.GetTableNode() for s in series_by_column.values() if s.GetTableNode()), None)
+        if table_node is None:
+            table_node = self.scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationSweepTable")
+        table_node.SetAndObserveTable(table)
         for name in names[1:]:
-            series = self.scene.GetFirstNodeByName(f"RegistrationSweep {name}")
+            series = series_by_column.get(name)
             if series is None:
                 series = self.scene.AddNewNodeByClass("vtkMRMLPlotSeriesNode", f"RegistrationSweep {name}")
                 chart.AddAndObservePlotSeriesNodeID(series.GetID())
@@ -376,12 +366,13 @@ class NavigationLogic:
             matrix_of(reference_to_tracker, "ReferenceToTracker"),
             matrix_of(reference_to_image, "ReferenceToImage"),
         )
-        nodes = []
-        for name, matrix in (("RobotBaseToTracker", base_to_tracker), ("ImageToRobotBase", image_to_base)):
-            node = self.transform_node(name)
-            set_matrix(node, matrix)
-            nodes.append(node)
-        return tuple(nodes)
+        parameters = self.parameters
+        base_node = parameters.robotBaseToTracker or self.transform_node("RobotBaseToTracker")
+        image_node = parameters.imageToRobotBase or self.transform_node("ImageToRobotBase")
+        set_matrix(base_node, base_to_tracker)
+        set_matrix(image_node, image_to_base)
+        parameters.robotBaseToTracker, parameters.imageToRobotBase = base_node, image_node
+        return base_node, image_node
 
     # -- 7. save and reload --------------------------------------------------------------------------------
     def save(self, path):

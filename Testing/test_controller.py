@@ -1,0 +1,282 @@
+"""The Qt-free controller behind the Slicer widget and the browser view, driven as a tracker drives it.
+
+Every test moves the probe only by writing matrices into transform nodes of a real slicer-core scene (what our
+receiver and SlicerOpenIGTLink do) and presses only what the GUI offers (``controller.run``). Known answers: a tip
+offset built by hand, points on a straight path at a set spacing, distances computable by hand.
+"""
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.core.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    rotation_about_axis,
+)
+
+from conftest import headless_scene
+
+slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
+from RAMSICPRegistrationLib.navigation import mrml_nodes  # noqa: E402
+from RAMSICPRegistrationLib.navigation.controller import ACTIONS, NavigationController, WorkflowError  # noqa: E402
+from RAMSICPRegistrationLib.navigation.navigation import matrix_of, set_matrix  # noqa: E402
+from RAMSICPRegistrationLib.navigation.parameters import MODULE_NAME, PARAMETERS  # noqa: E402
+
+TIP = np.array([1.5, -2.0, 152.0])  # the probe's tip in its own frame (mm), not on an axis on purpose
+
+
+def observer_count(node):
+    """Every observer on a VTK object, counted through its observer tags."""
+    return sum(node.GetCommand(tag) is not None for tag in range(1, 2000))
+
+
+@pytest.fixture
+def scene():
+    return headless_scene()
+
+
+@pytest.fixture
+def tracked(scene, tmp_path):
+    """A controller with a tracked probe selected, a calibrated tip and autosave into ``tmp_path``."""
+    controller = NavigationController(scene, autosave_directory=tmp_path)
+    probe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference")
+    tip = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeTipToProbe")
+    set_matrix(tip, make_transform(translation=TIP))
+    controller.parameters.probeToReference = probe
+    controller.parameters.probeTipToProbe = tip
+    yield controller, probe
+    controller.close()
+
+
+def pose_with_tip_at(point, rotation=None):
+    """A ProbeToReference pose that puts the tip (TIP in the probe frame) on ``point``."""
+    rotation = np.eye(3) if rotation is None else rotation
+    return make_transform(rotation, np.asarray(point, dtype=np.float64) - rotation @ TIP)
+
+
+def test_parameter_node_is_the_modules_singleton_and_survives_nothing_else(scene):
+    controller = NavigationController(scene)
+    node = controller.parameters.node
+    assert node.GetSingletonTag() == MODULE_NAME and node.GetAttribute("ModuleName") == MODULE_NAME
+    assert scene.GetSingletonNode(MODULE_NAME, "vtkMRMLScriptedModuleNode") is node
+    assert controller.parameters.thresholdHU == 200.0 and controller.parameters.autoCollectDistanceMm == 5.0
+    with pytest.raises(ValueError, match="autoCollectDistanceMm = 0.1: must lie in"):
+        controller.parameters.autoCollectDistanceMm = 0.1
+    with pytest.raises(TypeError, match="expected a vtkMRMLLinearTransformNode"):
+        controller.parameters.probeToReference = scene.AddNewNodeByClass("vtkMRMLModelNode")
+    assert {parameter.name for parameter in PARAMETERS} >= {"probeToReference", "method", "referenceToImage"}
+    controller.close()
+
+
+def test_pivot_from_300_streamed_poses_recovers_the_tip(tracked):
+    controller, probe = tracked
+    controller.parameters.probeTipToProbe = None  # not calibrated yet: the pivot writes it
+    rng = np.random.default_rng(3)
+    divot = np.array([12.0, -40.0, 85.0])
+    set_matrix(probe, pose_with_tip_at(divot))
+    assert controller.run("start_pivot") is None and controller.status().pivot_recording
+    for _ in range(300):
+        rotation = rotation_about_axis(rng.normal(size=3), np.radians(rng.uniform(-30, 30)))
+        pose = pose_with_tip_at(divot, rotation)
+        pose[:3, 3] += rng.normal(scale=0.1, size=3)  # tracker noise, 0.1 mm per axis
+        set_matrix(probe, pose)
+    assert controller.status().pivot_poses == 300
+    result = controller.run("stop_pivot")
+    assert np.linalg.norm(result.tip_in_probe - TIP) < 0.05
+    assert 0.1 < result.rms_mm < 0.25  # reported: the tip's scatter from the 0.1 mm per axis noise
+    tip_node = controller.parameters.probeTipToProbe
+    np.testing.assert_allclose(matrix_of(tip_node)[:3, 3], result.tip_in_probe)
+    assert "RMS" in controller.status().message and not controller.status().pivot_recording
+
+
+def test_pivot_without_a_probe_node_or_poses_is_a_message_not_an_exception(scene):
+    controller = NavigationController(scene)
+    assert controller.run("start_pivot") is None
+    status = controller.status()
+    assert status.message_is_error and "select ProbeToReference" in status.message
+    assert controller.availability()["start_pivot"].startswith("select ProbeToReference")
+    probe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference")
+    controller.parameters.probeToReference = probe
+    set_matrix(probe, np.eye(4))
+    controller.run("start_pivot")
+    assert controller.run("stop_pivot") is None  # no pose arrived while recording
+    assert "0 poses recorded, at least 10 needed" in controller.status().message
+    with pytest.raises(WorkflowError, match="start pivot recording first"):
+        controller.stop_pivot()  # a script calling the method directly gets the exception
+    controller.close()
+
+
+def test_auto_collect_along_a_60_mm_path_collects_at_the_set_spacing_and_saves_each_at_once(tracked, tmp_path):
+    controller, probe = tracked
+    start, direction = np.array([10.0, 20.0, 30.0]), np.array([2.0, -1.0, 2.0]) / 3.0
+    set_matrix(probe, pose_with_tip_at(start))
+    # 4.75 mm in 0.5 mm steps: 9 steps (4.5 mm) are too few, 10 steps (5 mm) enough, with no tie to round
+    controller.parameters.autoCollectDistanceMm = 4.75
+    controller.run("set_auto_collect", True)
+    assert controller.status().auto_collect
+    saved_counts = []
+    for step in range(121):  # 0, 0.5, ..., 60 mm
+        set_matrix(probe, pose_with_tip_at(start + direction * 0.5 * step))
+        saved = tmp_path / "ProbePoints.mrk.json"
+        saved_counts.append(len(json.loads(saved.read_text())["markups"][0]["controlPoints"]))
+    points = mrml_nodes.fiducial_positions(controller.parameters.probePoints)
+    assert len(points) == 13  # at 0, 5, 10, ..., 60 mm
+    np.testing.assert_allclose(points, start + direction * 5.0 * np.arange(13)[:, None], atol=1e-9)
+    assert saved_counts == [1 + step // 10 for step in range(121)]  # on disk the moment it is taken
+    controller.run("set_auto_collect", False)
+    set_matrix(probe, pose_with_tip_at(start + direction * 80.0))
+    assert controller.parameters.probePoints.GetNumberOfControlPoints() == 13
+
+
+def test_stale_after_a_silent_second_then_valid_again_and_collection_needs_no_other_call(tracked, scene):
+    controller, probe = tracked
+    assert controller.tool_state("probeToReference").state == "waiting"
+    assert controller.run("collect_point") is None
+    assert "ProbeToReference is not updating (last pose: never)" in controller.status().message
+    set_matrix(probe, pose_with_tip_at([1.0, 2.0, 3.0]))
+    assert controller.tool_state("probeToReference").state == "valid"
+    assert controller.run("collect_point") == 0
+    time.sleep(1.2)  # the tracker stops sending
+    state = controller.tool_state("probeToReference")
+    assert state.state == "stale" and state.age_s >= 1.2
+    assert controller.run("collect_point") is None and "last pose: 1." in controller.status().message
+    set_matrix(probe, pose_with_tip_at([4.0, 5.0, 6.0]))
+    assert controller.tool_state("probeToReference").state == "valid"
+    controller.run("add_reference_body_markers")  # 4 marker centres in reference coordinates...
+    controller.parameters.markersPatient.RemoveNthControlPoint(3)  # ...the surgeon touches the 4th instead
+    controller.parameters.markersImage = mrml_nodes.fiducial_node(scene, np.eye(4, 3) * 30.0)
+    assert controller.run("collect_marker") == 3
+    np.testing.assert_allclose(mrml_nodes.fiducial_positions(controller.parameters.markersPatient)[3], [4, 5, 6])
+    assert controller.run("collect_marker") is None and "already holds 4 centres" in controller.status().message
+    np.testing.assert_allclose(mrml_nodes.fiducial_positions(controller.parameters.probePoints), [[1.0, 2.0, 3.0]])
+
+
+def test_a_parent_transform_change_is_not_a_pose(tracked, scene):
+    controller, probe = tracked
+    set_matrix(probe, np.eye(4))
+    time.sleep(1.2)
+    parent = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToImage")
+    probe.SetAndObserveTransformNodeID(parent.GetID())
+    set_matrix(parent, make_transform(translation=(5.0, 0.0, 0.0)))  # TransformModifiedEvent on the probe too
+    assert controller.tool_state("probeToReference").state == "stale"
+
+
+def test_tip_to_surface_readout_follows_matrix_updates(tracked, scene, tibia_patient):
+    controller, probe = tracked
+    parameters = controller.parameters
+    parameters.ipcModel = mrml_nodes.model_node(scene, tibia_patient.ipc)
+    reference_to_image = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToImage")
+    set_matrix(reference_to_image, tibia_patient.reference_to_image)
+    parameters.referenceToImage = reference_to_image
+    on_bone = apply_transform(invert_transform(tibia_patient.reference_to_image), tibia_patient.ipc[:1])[0]
+    set_matrix(probe, pose_with_tip_at(on_bone))
+    assert controller.status().tip_to_surface_mm == pytest.approx(0.0, abs=1e-9)
+    normal = tibia_patient.ipc[0] - tibia_patient.ipc.mean(axis=0)  # roughly outwards from the bone
+    lifted = on_bone + 200.0 * normal / np.linalg.norm(normal)
+    set_matrix(probe, pose_with_tip_at(lifted))
+    expected = np.linalg.norm(tibia_patient.ipc - apply_transform(tibia_patient.reference_to_image, lifted), axis=1)
+    assert controller.status().tip_to_surface_mm == pytest.approx(expected.min(), abs=1e-9)
+    time.sleep(1.2)
+    assert controller.status().tip_to_surface_mm is None  # no readout from a stale probe
+
+
+def test_observers_follow_the_selection(tracked, scene):
+    controller, first = tracked
+    second = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference (2)")
+    before_first, before_second = observer_count(first), observer_count(second)
+    controller.parameters.probeToReference = second
+    assert observer_count(first) == before_first - 1 and observer_count(second) == before_second + 1
+    set_matrix(first, np.eye(4))
+    assert controller.tool_state("probeToReference").state == "waiting"  # the old node is not followed
+    set_matrix(second, np.eye(4))
+    assert controller.tool_state("probeToReference").state == "valid"
+    controller.parameters.probeToReference = None
+    assert observer_count(second) == before_second
+    assert controller.tool_state("probeToReference").state == "not selected"
+
+
+@pytest.mark.parametrize("running", ["pivot", "auto-collect"])
+def test_scene_close_while_recording_removes_every_observer(scene, tmp_path, running):
+    probe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference")
+    reference = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToTracker")
+    counts = {node: observer_count(node) for node in (probe, reference)}
+    controller = NavigationController(scene, autosave_directory=tmp_path)
+    parameter_node = controller.parameters.node
+    parameter_observers = observer_count(parameter_node) - len(controller._parameter_observation[1])
+    scene_observers = observer_count(scene)
+    controller.parameters.probeToReference = probe
+    controller.parameters.referenceToTracker = reference
+    controller.parameters.probeTipToProbe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeTipToProbe")
+    set_matrix(probe, np.eye(4))
+    set_matrix(reference, np.eye(4))
+    if running == "pivot":
+        controller.run("start_pivot")
+    else:
+        controller.run("set_auto_collect", True)
+    set_matrix(probe, make_transform(translation=(10.0, 0.0, 0.0)))
+    assert all(observer_count(node) == counts[node] + 1 for node in counts)
+    scene.Clear(0)  # what File > Close scene does
+    assert all(observer_count(node) == counts[node] for node in counts)  # our observers are gone
+    status = controller.status()
+    assert not status.pivot_recording and not status.auto_collect
+    assert status.tools[0].state == "not selected"
+    set_matrix(probe, make_transform(translation=(20.0, 0.0, 0.0)))  # a late pose on a removed node: ignored
+    controller.close()
+    assert observer_count(parameter_node) == parameter_observers
+    assert observer_count(scene) == scene_observers - 2
+
+
+def test_register_through_the_controller_moves_the_probe_over_the_ct(tracked, scene, tibia_patient):
+    controller, probe = tracked
+    parameters = controller.parameters
+    trial = tibia_patient.simulate_trial(np.random.default_rng(1), marker_fle_mm=0.0, probe_noise_mm=0.0)
+    parameters.ipcModel = mrml_nodes.model_node(scene, tibia_patient.ipc)
+    parameters.markersImage = mrml_nodes.fiducial_node(scene, trial.markers_image)
+    parameters.markersPatient = mrml_nodes.fiducial_node(scene, trial.markers_patient)
+    parameters.method = "cr"  # exact marker centres: the coarse registration alone is exact
+    assert controller.availability()["register"] == "collect probe points on the bone (step 3)"
+    for point in trial.ppc:
+        set_matrix(probe, pose_with_tip_at(point))
+        controller.run("collect_point")
+    result = controller.run("register")
+    assert result.method == "cr" and len(result.residuals_mm) == 40
+    np.testing.assert_allclose(result.reference_to_image, tibia_patient.reference_to_image, atol=1e-6)
+    np.testing.assert_allclose(matrix_of(parameters.referenceToImage), result.reference_to_image)
+    assert probe.GetParentTransformNode() is parameters.referenceToImage
+    assert parameters.probeTipToProbe.GetParentTransformNode() is probe
+    assert controller.status().message.startswith(result.method.upper())
+    assert controller.run("set_included", 99, False) is None and "the table has points 1 to 40" in (
+        controller.status().message
+    )
+
+
+def test_process_ct_cancel_writes_nothing(scene, tibia_phantom):
+    from RAMSICPRegistrationLib.navigation.controller import Cancelled
+
+    controller = NavigationController(scene)
+    controller.parameters.ctVolume = mrml_nodes.volume_node(scene, tibia_phantom[0], "CT")
+    steps = []
+
+    def cancel_after_segmentation(step, done, total):
+        steps.append(step)
+        if done == 1:
+            raise Cancelled
+
+    before = scene.GetNumberOfNodes()
+    assert controller.run("process_ct", progress=cancel_after_segmentation) is None
+    assert steps == ["segmentation", "bone surface"] and scene.GetNumberOfNodes() == before
+    assert controller.status().message == "CT processing cancelled; nothing was changed"
+    controller.close()
+
+
+def test_every_action_has_an_availability_and_run_refuses_unknown_ones(scene):
+    controller = NavigationController(scene)
+    assert set(controller.availability()) == set(ACTIONS)
+    assert all(callable(getattr(controller, action)) for action in ACTIONS)
+    with pytest.raises(ValueError, match="unknown action 'explode'"):
+        controller.run("explode")
+    controller.close()
