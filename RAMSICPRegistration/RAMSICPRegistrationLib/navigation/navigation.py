@@ -380,9 +380,7 @@ class NavigationLogic:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         written = []
-        nodes = self.scene.GetNodesByClass("vtkMRMLStorableNode")
-        for index in range(nodes.GetNumberOfItems()):
-            node = nodes.GetItemAsObject(index)
+        for node in _storable_nodes(self.scene):
             if node.GetHideFromEditors() or not _has_data(node):
                 continue
             if node.GetStorageNode() is None and not node.AddDefaultStorageNode():
@@ -406,13 +404,17 @@ def load_scene(scene, path):
     scene.SetURL(str(path))
     if not scene.Import():
         raise RuntimeError(f"{path}: cannot read the scene")
-    nodes = scene.GetNodesByClass("vtkMRMLStorableNode")
-    for index in range(nodes.GetNumberOfItems()):
-        node = nodes.GetItemAsObject(index)
+    for node in _storable_nodes(scene):
         storage = node.GetStorageNode()
         if storage is not None and storage.GetFileName() and not storage.ReadData(node):
             raise RuntimeError(f"{path}: cannot read the data of {node.GetName()!r} from {storage.GetFileName()}")
     return scene
+
+
+def _storable_nodes(scene):
+    """The scene's storable nodes (by index: ``GetNodesByClass`` returns a collection the caller must release)."""
+    count = scene.GetNumberOfNodesByClass("vtkMRMLStorableNode")
+    return [scene.GetNthNodeByClass(index, "vtkMRMLStorableNode") for index in range(count)]
 
 
 def _has_data(node):
