@@ -1,6 +1,7 @@
-"""The offscreen picture: a PNG of the right size in which residuals show as green (0 mm) and red (1 mm)."""
+"""The offscreen picture: residual colours, targets, the legend's band kept free, and clear errors for bad paths."""
 
 import numpy as np
+import pytest
 from vtkmodules.util.numpy_support import vtk_to_numpy
 from vtkmodules.vtkIOImage import vtkPNGReader
 
@@ -8,20 +9,42 @@ from RAMSICPRegistrationLib.navigation.scene_render import render_registration
 
 from conftest import ellipsoid_points
 
+SURFACE = ellipsoid_points(3000, semi_axes=(20.0, 15.0, 60.0))
+PROBE = np.array([[-16.0, 12.0, -20.0], [-16.0, 12.0, 20.0]])  # on the side facing the camera
+MARKERS = np.array([[60.0, -60.0, -30.0], [60.0, -60.0, 30.0], [60.0, -90.0, 0.0]])  # behind the bone
+TARGETS = np.array([[-20.0, 0.0, 40.0], [0.0, 15.0, 40.0]])  # the medial and anterior ends of a cut at z = 40
 
-def test_render_shows_residual_colours(tmp_path):
-    surface = ellipsoid_points(3000, semi_axes=(20.0, 15.0, 60.0))
-    probe = np.array([[-16.0, 12.0, -20.0], [-16.0, 12.0, 20.0]])  # on the side facing the camera
-    markers = np.array([[60.0, -60.0, -30.0], [60.0, -60.0, 30.0], [60.0, -90.0, 0.0]])  # behind the bone
-    path = tmp_path / "scene.png"
-    render_registration(path, surface, None, probe, [0.0, 1.0], markers, size=(400, 300))
+
+def _pixels(path):
     reader = vtkPNGReader()
     reader.SetFileName(str(path))
     reader.Update()
     image = reader.GetOutput()
-    assert image.GetDimensions()[:2] == (400, 300)
-    pixels = vtk_to_numpy(image.GetPointData().GetScalars())[:, :3].astype(int).reshape(300, 400, 3)
-    scene = pixels[:, :300]  # left of the colour bar, which has both colours too
+    width, height = image.GetDimensions()[:2]
+    rgb = vtk_to_numpy(image.GetPointData().GetScalars())[:, :3].astype(int).reshape(height, width, 3)
+    return rgb[::-1]  # top row first, as the picture is seen
+
+
+def test_render_shows_residual_colours_targets_and_a_scale_bar(tmp_path):
+    path = tmp_path / "scene.png"
+    cut = (np.array([0.0, 0.0, 40.0]), np.array([0.0, 0.0, 1.0]))
+    render_registration(path, SURFACE, None, PROBE, [0.0, 1.0], MARKERS, targets=TARGETS, cut=cut, size=(800, 600))
+    pixels = _pixels(path)
+    assert pixels.shape == (600, 800, 3)
+    scene = pixels[140:, 150:640]  # below the title and the legend, left of the colour bar
     green = (scene[..., 1] > 150) & (scene[..., 0] < 90) & (scene[..., 2] < 90)
     red = (scene[..., 0] > 150) & (scene[..., 1] < 90) & (scene[..., 2] < 90)
+    magenta = (scene[..., 0] > 180) & (scene[..., 2] > 160) & (scene[..., 1] < 110)
     assert green.sum() > 3 and red.sum() > 3  # the 0 mm point and the 1 mm point
+    assert magenta.sum() > 20  # a 6 mm target cube
+    corner = pixels[-70:, -300:]  # the scale bar: a white line in the lower right
+    assert ((corner > 230).all(axis=-1)).sum() > 100
+
+
+@pytest.mark.parametrize(
+    "name, words",
+    [("missing/scene.png", "does not exist"), ("scene.jpg", "a PNG file"), (".", "is a folder")],
+)
+def test_bad_paths_are_refused_before_rendering(tmp_path, name, words):
+    with pytest.raises(OSError, match=words):
+        render_registration(tmp_path / name, SURFACE, None, PROBE, [0.0, 1.0], MARKERS)

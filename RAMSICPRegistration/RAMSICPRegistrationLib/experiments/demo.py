@@ -240,6 +240,8 @@ def _screenshot(path, index, side, patient, data):
         apply_transform(result.reference_to_image, data.ppc),
         result.residuals_mm,
         patient.markers_image,
-        title=f"CR-RAMSICP (L = {result.scale:g}): TRE {result.tre_mm:.2f} mm, probe points "
-        f"{result.ppc_rms_mm:.2f} mm RMS",
+        targets=patient.targets_image,
+        cut=(np.array([0.0, 0.0, patient.cut_height_mm]), np.array([0.0, 0.0, 1.0])),
+        title=f"{result.method.upper()} (L = {result.scale:g}): TRE {result.tre_mm:.2f} mm at the 4 targets, "
+        f"probe points {result.ppc_rms_mm:.2f} mm RMS from the bone",
     )
