@@ -1,6 +1,7 @@
 """Interoperability with the OpenIGTLink C++ library (Debian's libopenigtlink-dev, installed by .ci/run):
 our server to a C++ client and a C++ server to our receiver, matrices compared bit for bit (float32)."""
 
+import dataclasses
 import shutil
 import struct
 import subprocess
@@ -44,12 +45,14 @@ def _bits(values):
 
 
 class _FixedTracker:
-    """A tracker that always sees the probe at POSE (the pose travels exactly as NDI's TX would carry it)."""
+    """A tracker that always sees the probe at POSE (the pose travels exactly as NDI's TX would carry it), one
+    new frame each time it is asked (the server sends a tracker frame only once)."""
 
     def __init__(self):
         self.pose = ToolPose(1, "valid", matrix_to_quaternion(POSE), tuple(POSE[:3, 3]), 0.1, 0x31, 1)
 
     def poses(self):
+        self.pose = dataclasses.replace(self.pose, frame=self.pose.frame + 1)
         return {"Probe": self.pose}, 0
 
     def close(self):

@@ -5,7 +5,8 @@ Run it as its own process (``python -m OpenIGTLinkBridgeLib.ndi_simulator --port
 PDIS, TSTART, TSTOP and TX (option 0001), checks every command's CRC (ERROR04 otherwise) and refuses commands in
 the wrong mode with NDI's error codes. Tools are recognised by the ``.rom`` data written with PVWR and posed by
 a ``Scenario``: a function of time giving each tool's ToolToTracker (or None: MISSING), with optional noise,
-out-of-volume flags and a scripted disconnect.
+out-of-volume flags and a scripted disconnect. Tracking runs in frames of ``1 / rate_hz``: each TX answers the
+current frame's poses, with noise drawn for that frame (and tool) from the scenario's seed.
 """
 
 import argparse
@@ -73,7 +74,6 @@ class VegaSimulator:
 
     def __init__(self, scenario, host="127.0.0.1", port=0):
         self.scenario = scenario
-        self.rng = np.random.default_rng(scenario.seed)
         self.server = socket.create_server((host, port))
         self.address = self.server.getsockname()
         self._stop = threading.Event()
@@ -221,8 +221,10 @@ class VegaSimulator:
         return "OKAY"
 
     def _tx(self, ports, tracking_since):
-        elapsed = time.monotonic() - tracking_since
-        frame = int(elapsed * self.scenario.rate_hz)
+        # Like a real tracker, one measurement per frame: the poses are taken at the frame's time and its noise
+        # is drawn for that frame, so asking twice within a frame returns the same answer.
+        frame = int((time.monotonic() - tracking_since) * self.scenario.rate_hz)
+        elapsed = frame / self.scenario.rate_hz
         poses_now = self.scenario.poses(elapsed)
         replies = []
         for handle, port in sorted(ports.items()):
@@ -234,7 +236,8 @@ class VegaSimulator:
             if matrix is None:
                 replies.append(ToolPose(handle, "missing", port_status=0x11, frame=frame))
                 continue
-            translation = matrix[:3, 3] + self.rng.normal(scale=self.scenario.noise_mm / np.sqrt(3), size=3)
+            noise = np.random.default_rng((self.scenario.seed, frame, handle)).normal(size=3)
+            translation = matrix[:3, 3] + noise * self.scenario.noise_mm / np.sqrt(3)
             status = 0x31
             if self.scenario.out_of_volume is not None and self.scenario.out_of_volume(elapsed, rom):
                 status |= 0x80
