@@ -76,7 +76,7 @@ def test_cpp_client_reads_our_transforms_bit_exactly(programs):
     expected = tracker.pose.matrix()
     values = np.concatenate((expected[:3, :3].T.ravel(), expected[:3, 3]))  # column by column, then t
     for line in lines:
-        device, *hexes = line.split()
+        device, *hexes, _ = line.split()
         assert device == "ProbeToTracker"
         assert [int(h, 16) for h in hexes] == _bits(values)
 

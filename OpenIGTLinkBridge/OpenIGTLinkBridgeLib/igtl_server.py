@@ -52,17 +52,18 @@ class TrackerSource:
 
     ``tracker_factory`` returns a connected, started tracker with ``poses()`` and ``close()``; it is called again
     after a failure, after a back-off that doubles from ``BACKOFF_START_S`` up to ``BACKOFF_MAX_S`` while the
-    tracker keeps failing, each failure logged with its reason and the time of the next try.
+    tracker keeps failing, each failure logged with its reason and the time of the next try. With
+    ``wait_for_client`` the tracker is first read when the first client has connected.
     """
 
-    def __init__(self, tracker_factory, names=None, rate_hz=DEFAULT_RATE_HZ):
+    def __init__(self, tracker_factory, names=None, rate_hz=DEFAULT_RATE_HZ, wait_for_client=False):
         self.tracker_factory = tracker_factory
         self.names = dict(names or DEFAULT_NAMES)
         self.period_s = 1.0 / rate_hz
         self.tracker = None
         self.status = None  # (code, error name, text) for STATUS messages
         self.timestamp_s = None  # frames are stamped with the time they are sent
-        self.wait_for_client = False
+        self.wait_for_client = wait_for_client  # connect to the tracker only once a client listens
         self.backoff_s = 0.0
         self._due = time.monotonic()
         self._last_frames = None
@@ -256,10 +257,12 @@ class TrackerServer:
 
     def _frame(self):
         poses = self.source.read()
-        if self.source.status is not None:
+        if poses:
+            self._send(poses)
+        if self.source.status is not None:  # after the frame: "replay finished" follows the last one
             self._set_status(*self.source.status)
-        if not poses:
-            return
+
+    def _send(self, poses):
         now = time.time() if self.source.timestamp_s is None else self.source.timestamp_s
         for pose in poses:
             if pose.valid:

@@ -1,8 +1,9 @@
 """``ramsicp demo --live``: simulator -> OpenIGTLink server -> receiver -> probe-point collection -> CR-RAMSICP.
 
-The simulated Vega plays the demo patient's touches at 60 Hz; our NDI driver reads it, our server polls it at
-twice that rate and streams each tracker frame once, our receiver writes the transform nodes of a real MRML
-scene, and points are collected the way a surgeon holds the probe still: the hold-still detector of
+The simulated Vega plays the demo patient's touches at 60 Hz, one frame per read (``stepped``: the session is
+the same however loaded the machine is); our NDI driver reads it, our server streams each tracker frame once
+from the moment the receiver connects, our receiver writes the transform nodes of a real MRML scene, and
+points are collected the way a surgeon holds the probe still: the hold-still detector of
 ``core.hold_still`` (tip within ``HOLD_STILL_MM`` for ``HOLD_STILL_S``) gives each touch as the mean over its
 whole hold, timed by the frames' own time stamps. The collected points are registered exactly as the offline
 demo registers its points. The session can be recorded to a PLUS sequence file (``record``).
@@ -16,7 +17,7 @@ import numpy as np
 
 from RAMSICPRegistrationLib.core.hold_still import HoldStillDetector
 
-from .igtl_server import TrackerServer
+from .igtl_server import TrackerServer, TrackerSource
 from .live_scenario import PROBE_TIP_MM, demo_simulator
 from .ndi_driver import open_tracker
 
@@ -91,15 +92,18 @@ def run_live_demo(
     simulator, script = None, None
     if server_factory is None:
         simulator, script = demo_simulator(
-            touched, dwell_s=dwell_s, move_s=move_s, noise_mm=probe_noise_mm / np.sqrt(2), rate_hz=TRACKER_RATE_HZ
+            touched,
+            dwell_s=dwell_s,
+            move_s=move_s,
+            noise_mm=probe_noise_mm / np.sqrt(2),
+            rate_hz=TRACKER_RATE_HZ,
+            stepped=True,  # every tracker frame is read once, however loaded the machine: a reproducible session
         )
         simulator.start()
-        server = TrackerServer(
-            lambda: open_tracker("127.0.0.1", simulator.address[1]),
-            port=0,
-            rate_hz=2 * TRACKER_RATE_HZ,  # polling twice per tracker frame, every frame is seen (and sent once)
-            header_version=header_version,
-        ).start()
+        source = TrackerSource(
+            lambda: open_tracker("127.0.0.1", simulator.address[1]), rate_hz=TRACKER_RATE_HZ, wait_for_client=True
+        )
+        server = TrackerServer(source=source, port=0, header_version=header_version).start()
     else:
         server = server_factory()
     receiver = TrackerReceiver(scene, port=server.address[1])

@@ -93,11 +93,13 @@ def demo_simulator(
     disconnect_after_s=None,
     rate_hz=60.0,
     port=0,
+    stepped=False,
 ):
     """A VegaSimulator (not started) playing a TouchScript, and the script.
 
     ``points_reference`` default: the 40 probe points of the demo's tibia (seed 0). ``dropout(time_s)`` and
-    ``out_of_volume(time_s)`` make the probe MISSING or out of volume when they return True.
+    ``out_of_volume(time_s)`` make the probe MISSING or out of volume when they return True; ``stepped``: see
+    ``ndi_simulator.Scenario``.
     """
     from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
@@ -127,6 +129,7 @@ def demo_simulator(
         seed=seed,
         disconnect_after_s=disconnect_after_s,
         rate_hz=rate_hz,
+        stepped=stepped,
     )
     return VegaSimulator(scenario, port=port), script
 

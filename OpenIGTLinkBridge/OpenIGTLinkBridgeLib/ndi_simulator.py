@@ -51,7 +51,9 @@ class Scenario:
     """What the simulated tracker sees. ``poses(time_s)`` maps a tool's ROM bytes to its ToolToTracker or None.
 
     ``out_of_volume(time_s, rom)`` flags a pose as out of the characterised volume; ``disconnect_after_s``
-    closes the connection once, at that time after TSTART, as a cable pulled out would.
+    closes the connection once, at that time after TSTART, as a cable pulled out would. ``stepped``: each TX
+    answers the next frame whatever the time (a tracker read exactly once per frame), so that a session's
+    frames do not depend on how punctually it is polled: reproducible demos and tests on a loaded machine.
     """
 
     poses: object
@@ -60,6 +62,7 @@ class Scenario:
     seed: int = 0
     disconnect_after_s: float = None
     rate_hz: float = 60.0
+    stepped: bool = False
 
 
 @dataclass
@@ -79,6 +82,7 @@ class VegaSimulator:
         self._stop = threading.Event()
         self._thread = None
         self._disconnected_once = False
+        self._frames_answered = 0
 
     def start(self):
         self._thread = threading.Thread(target=self.serve, name="VegaSimulator", daemon=True)
@@ -166,6 +170,7 @@ class VegaSimulator:
         if name in ("PVWR", "PINIT", "PENA", "PDIS"):
             return self._port_command(name, arguments, ports, tracking_since), tracking_since
         if name == "TSTART":
+            self._frames_answered = 0
             return "OKAY", time.monotonic()
         if name == "TSTOP":
             return "OKAY", None
@@ -223,7 +228,10 @@ class VegaSimulator:
     def _tx(self, ports, tracking_since):
         # Like a real tracker, one measurement per frame: the poses are taken at the frame's time and its noise
         # is drawn for that frame, so asking twice within a frame returns the same answer.
-        frame = int((time.monotonic() - tracking_since) * self.scenario.rate_hz)
+        if self.scenario.stepped:
+            frame, self._frames_answered = self._frames_answered, self._frames_answered + 1
+        else:
+            frame = int((time.monotonic() - tracking_since) * self.scenario.rate_hz)
         elapsed = frame / self.scenario.rate_hz
         poses_now = self.scenario.poses(elapsed)
         replies = []
