@@ -31,7 +31,11 @@ def test_reads_the_real_recordings_field_for_field():
     assert first.is_valid("StylusToTracker") and first.fields == {"ImageStatus": "INVALID"}
     assert calibration.header["DimSize"] == "0 0 93" and calibration.header["ElementDataFile"] == "LOCAL"
     tank = read_sequence(WATER_TANK)
-    assert len(tank.frames) == 801 and tank.transform_names == ["ProbeToTracker", "ReferenceToTracker", "StylusToTracker"]
+    assert len(tank.frames) == 801 and tank.transform_names == [
+        "ProbeToTracker",
+        "ReferenceToTracker",
+        "StylusToTracker",
+    ]
     last = tank.frames[800]
     assert last.timestamp_s == 7436.385229 and last.fields["FrameNumber"] == "333152"
     assert last.transforms["StylusToTracker"][2, 0] == 8.6288e-005  # PLUS's three-digit exponents
@@ -129,19 +133,40 @@ GOOD = CALIBRATION.read_text()
         (lambda p: _broken(p, ""), "is empty"),
         (lambda p: _broken(p, "NRRD0004\ntype: short\n"), "line 1 has no '='"),
         (lambda p: _broken(p, "ObjectType = Mesh\n"), "not a MetaImage sequence file"),
-        (lambda p: _broken(p, GOOD[: GOOD.index("Seq_Frame0050_StylusToTrackerTransform") + 80] + "\nElementDataFile = LOCAL\n"),
-         r"frame 50, StylusToTrackerTransform: \d numbers, expected 16"),
+        (
+            lambda p: _broken(
+                p, GOOD[: GOOD.index("Seq_Frame0050_StylusToTrackerTransform") + 80] + "\nElementDataFile = LOCAL\n"
+            ),
+            r"frame 50, StylusToTrackerTransform: \d numbers, expected 16",
+        ),
         (lambda p: _broken(p, GOOD[: GOOD.index("Seq_Frame0050_Timestamp")]), "cut short; its last frame is 50"),
-        (lambda p: _broken(p, GOOD.replace("Frame0007_Timestamp = 197.19", "Frame0007_Timestamp = x197.19")),
-         "frame 7, Timestamp: 'x197.19.*' is not a number"),
-        (lambda p: _broken(p, GOOD.replace("Seq_Frame0003_Timestamp", "Seq_Frame0003_Timestanp")),
-         "frame 3, Timestamp: missing"),
-        (lambda p: _broken(p, GOOD.replace("60.6 -0.005603734062377132", "nan -0.005603734062377132", 1)),
-         "frame 0, ReferenceToTrackerTransform: 'nan' is not a finite number"),
+        (
+            lambda p: _broken(p, GOOD.replace("Frame0007_Timestamp = 197.19", "Frame0007_Timestamp = x197.19")),
+            "frame 7, Timestamp: 'x197.19.*' is not a number",
+        ),
+        (
+            lambda p: _broken(p, GOOD.replace("Seq_Frame0003_Timestamp", "Seq_Frame0003_Timestanp")),
+            "frame 3, Timestamp: missing",
+        ),
+        (
+            lambda p: _broken(p, GOOD.replace("60.6 -0.005603734062377132", "nan -0.005603734062377132", 1)),
+            "frame 0, ReferenceToTrackerTransform: 'nan' is not a finite number",
+        ),
         (lambda p: _broken(p, GOOD.replace("Seq_Frame0004_", "Seq_Frame0104_")), "frame 4: missing"),
     ],
-    ids=["missing", "folder", "empty", "nrrd", "not-an-image", "truncated-line", "truncated", "bad-number",
-         "no-timestamp", "nan", "gap"],
+    ids=[
+        "missing",
+        "folder",
+        "empty",
+        "nrrd",
+        "not-an-image",
+        "truncated-line",
+        "truncated",
+        "bad-number",
+        "no-timestamp",
+        "nan",
+        "gap",
+    ],
 )
 def test_broken_files_give_one_line_naming_file_frame_and_field(tmp_path, make, expected):
     path = make(tmp_path)

@@ -226,7 +226,7 @@ def _measured_tips(script, noise_mm, rate_hz, frames, seed=0):
     return np.array(tips)
 
 
-def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index):
+def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index, tmp_path):
     """Deterministic (issue 17): the simulated tracker measures each frame once (noise drawn per frame) and is read
     once per frame however loaded the machine, the server sends each tracker frame once from the moment the
     receiver connects, and a touch is the mean of its whole hold: the collected points are known exactly."""
@@ -237,7 +237,8 @@ def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_i
 
     trial = tibia_patient.simulate_trial(np.random.default_rng(3), 1.0, probe_noise_mm=0.0)
     trial = dataclasses.replace(trial, ppc=trial.ppc[::5])  # one touch per sub-area: 8 points
-    result = run_live_demo(slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, probe_noise_mm=0.25)
+    path = tmp_path / "session.igs.mha"
+    result = run_live_demo(slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, probe_noise_mm=0.25, record=path)
     assert len(result.collected) == 8
     assert np.sqrt(np.mean(result.collection_error_mm**2)) < 0.2  # hold means of 0.25 mm noise
     # The known answer: each touch is the mean of the tracker's own measurements over the frames in which the
@@ -251,6 +252,19 @@ def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_i
         assert touch.frames == len(frames) == 16
         np.testing.assert_allclose(touch.position, expected, atol=1e-3)
     assert abs(result.live.tre_mm - result.reference.tre_mm) < 0.5
+    # The recorded session replays through the server into the same touches and the same registration.
+    from OpenIGTLinkBridgeLib.live_demo import replay_server
+    from OpenIGTLinkBridgeLib.plus_sequence import read_sequence
+
+    recording = read_sequence(path)
+    assert recording.transform_names == ["ReferenceToTracker", "ProbeToTracker"] and len(recording.frames) >= 170
+    replayed = run_live_demo(
+        slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, server_factory=lambda: replay_server(path)
+    )
+    assert replayed.collected.tobytes() == result.collected.tobytes()
+    assert [t.frames for t in replayed.touches] == [t.frames for t in result.touches]
+    np.testing.assert_array_equal(replayed.live.reference_to_image, result.live.reference_to_image)
+    assert replayed.live.tre_mm == result.live.tre_mm
 
 
 def test_scikit_surgery_nditracker_reads_the_simulator_process(tmp_path):
@@ -332,13 +346,7 @@ def test_tracker_server_command_streams_the_simulator(tmp_path):
     finally:
         process.terminate()
         process.wait(timeout=10)
-    devices = set()
-    while len(data) >= igtl.HEADER_SIZE:
-        header = igtl.decode_header(data[: igtl.HEADER_SIZE])
-        if len(data) < igtl.HEADER_SIZE + header.body_size:
-            break
-        devices.add(igtl.decode_body(header, data[igtl.HEADER_SIZE : igtl.HEADER_SIZE + header.body_size]).device)
-        data = data[igtl.HEADER_SIZE + header.body_size :]
+    devices = {message.device for message in igtl.decode_available(data)[0]}
     assert {"ProbeToTracker", "ReferenceToTracker"} <= devices
 
 

@@ -66,8 +66,12 @@ def recorded_tips(recording, tool, reference, tip_mm):
 
 
 def find_recorded_touches(
-    recording, tool="StylusToTracker", reference="ReferenceToTracker", tip_mm=(0.0, 0.0, 0.0),
-    still_mm=DEFAULT_STILL_MM, still_s=DEFAULT_STILL_S,
+    recording,
+    tool="StylusToTracker",
+    reference="ReferenceToTracker",
+    tip_mm=(0.0, 0.0, 0.0),
+    still_mm=DEFAULT_STILL_MM,
+    still_s=DEFAULT_STILL_S,
 ):
     """The touches of ``tool``'s tip (``tip_mm`` in the tool's frame) in ``recording``, in reference coordinates."""
     tips, frames, valid = recorded_tips(recording, tool, reference, tip_mm)

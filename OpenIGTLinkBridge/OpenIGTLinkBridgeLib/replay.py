@@ -114,8 +114,9 @@ def rename_devices(names, renames):
     used = set()
     for old in renames:
         if not any(name == old or name.startswith(old + "To") for name in names):
-            raise ValueError(f"--rename {old}={renames[old]}: the recording has no {old} transform "
-                             f"(it has {', '.join(names)})")
+            raise ValueError(
+                f"--rename {old}={renames[old]}: the recording has no {old} transform (it has {', '.join(names)})"
+            )
     for name in names:
         device = name
         for old, new in renames.items():
