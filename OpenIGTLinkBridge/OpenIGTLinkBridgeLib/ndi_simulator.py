@@ -78,6 +78,7 @@ class VegaSimulator:
     def __init__(self, scenario, host="127.0.0.1", port=0):
         self.scenario = scenario
         self.server = socket.create_server((host, port))
+        self.server.settimeout(0.2)  # here, not in serve(): stop() may close the socket before the thread runs
         self.address = self.server.getsockname()
         self._stop = threading.Event()
         self._thread = None
@@ -96,7 +97,6 @@ class VegaSimulator:
             self._thread.join(timeout=5)
 
     def serve(self):
-        self.server.settimeout(0.2)
         while not self._stop.is_set():
             try:
                 connection, _ = self.server.accept()
