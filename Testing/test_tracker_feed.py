@@ -207,17 +207,64 @@ def test_idle_receiver_uses_almost_no_cpu():
     assert (time.process_time() - start_cpu) / (time.monotonic() - start) < 0.05
 
 
-def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index):
+def _measured_tips(script, noise_mm, rate_hz, frames, seed=0):
+    """The tip (reference coordinates) in each tracker frame as the simulated Vega measures it: the script's poses
+    at the frame's time, the frame's noise, and NDI's TX rounding (4-decimal quaternion, 0.01 mm translation)."""
+    from OpenIGTLinkBridgeLib.ndi_protocol import ToolPose, format_tx, parse_tx
+    from OpenIGTLinkBridgeLib.ndi_simulator import matrix_to_quaternion
+
+    tips = []
+    for frame in frames:
+        measured = []
+        poses = (script.reference_to_tracker, script.reference_to_tracker @ script.probe_to_reference(frame / rate_hz))
+        for handle, pose in enumerate(poses, start=1):
+            noise = np.random.default_rng((seed, frame, handle)).normal(size=3) * noise_mm / np.sqrt(3)
+            sent = ToolPose(handle, "valid", matrix_to_quaternion(pose), tuple(pose[:3, 3] + noise), 0.1, 0x31, frame)
+            measured.append(parse_tx(format_tx([sent]))[0][0].matrix())
+        probe_to_reference = np.linalg.inv(measured[0]) @ measured[1]
+        tips.append(probe_to_reference[:3, :3] @ PROBE_TIP_MM + probe_to_reference[:3, 3])
+    return np.array(tips)
+
+
+def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_index, tmp_path):
+    """Deterministic (issue 17): the simulated tracker measures each frame once (noise drawn per frame) and is read
+    once per frame however loaded the machine, the server sends each tracker frame once from the moment the
+    receiver connects, and a touch is the mean of its whole hold: the collected points are known exactly."""
     import dataclasses
 
-    from OpenIGTLinkBridgeLib.live_demo import run_live_demo
+    from OpenIGTLinkBridgeLib.live_demo import TRACKER_RATE_HZ, run_live_demo
+    from OpenIGTLinkBridgeLib.live_scenario import DEFAULT_REFERENCE_TO_TRACKER, TouchScript
 
     trial = tibia_patient.simulate_trial(np.random.default_rng(3), 1.0, probe_noise_mm=0.0)
     trial = dataclasses.replace(trial, ppc=trial.ppc[::5])  # one touch per sub-area: 8 points
-    result = run_live_demo(slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, probe_noise_mm=0.25)
+    path = tmp_path / "session.igs.mha"
+    result = run_live_demo(slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, probe_noise_mm=0.25, record=path)
     assert len(result.collected) == 8
-    assert np.sqrt(np.mean(result.collection_error_mm**2)) < 0.2  # 8-frame means of 0.25 mm noise
+    assert np.sqrt(np.mean(result.collection_error_mm**2)) < 0.2  # hold means of 0.25 mm noise
+    # The known answer: each touch is the mean of the tracker's own measurements over the frames in which the
+    # script holds the tip on that point, every one of them delivered (float32 on the wire: 1e-3 mm).
+    script = TouchScript(trial.ppc, DEFAULT_REFERENCE_TO_TRACKER, dwell_s=0.25, move_s=0.1)
+    for number, touch in enumerate(result.touches):
+        start, end = script.touch_interval(number)
+        frames = np.arange(int(start * TRACKER_RATE_HZ) - 2, int(end * TRACKER_RATE_HZ) + 3)
+        frames = [k for k in frames if np.linalg.norm(script.tip(k / TRACKER_RATE_HZ) - trial.ppc[number]) < 1e-9]
+        expected = _measured_tips(script, 0.25 / np.sqrt(2), TRACKER_RATE_HZ, frames).mean(axis=0)
+        assert touch.frames == len(frames) == 16
+        np.testing.assert_allclose(touch.position, expected, atol=1e-3)
     assert abs(result.live.tre_mm - result.reference.tre_mm) < 0.5
+    # The recorded session replays through the server into the same touches and the same registration.
+    from OpenIGTLinkBridgeLib.live_demo import replay_server
+    from OpenIGTLinkBridgeLib.plus_sequence import read_sequence
+
+    recording = read_sequence(path)
+    assert recording.transform_names == ["ReferenceToTracker", "ProbeToTracker"] and len(recording.frames) >= 170
+    replayed = run_live_demo(
+        slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, server_factory=lambda: replay_server(path)
+    )
+    assert replayed.collected.tobytes() == result.collected.tobytes()
+    assert [t.frames for t in replayed.touches] == [t.frames for t in result.touches]
+    np.testing.assert_array_equal(replayed.live.reference_to_image, result.live.reference_to_image)
+    assert replayed.live.tre_mm == result.live.tre_mm
 
 
 def test_scikit_surgery_nditracker_reads_the_simulator_process(tmp_path):
@@ -299,13 +346,7 @@ def test_tracker_server_command_streams_the_simulator(tmp_path):
     finally:
         process.terminate()
         process.wait(timeout=10)
-    devices = set()
-    while len(data) >= igtl.HEADER_SIZE:
-        header = igtl.decode_header(data[: igtl.HEADER_SIZE])
-        if len(data) < igtl.HEADER_SIZE + header.body_size:
-            break
-        devices.add(igtl.decode_body(header, data[igtl.HEADER_SIZE : igtl.HEADER_SIZE + header.body_size]).device)
-        data = data[igtl.HEADER_SIZE + header.body_size :]
+    devices = {message.device for message in igtl.decode_available(data)[0]}
     assert {"ProbeToTracker", "ReferenceToTracker"} <= devices
 
 

@@ -37,14 +37,8 @@ def baseline_client(port, stop, latencies):
             continue
         if not chunk:
             break
-        buffer += chunk
-        while len(buffer) >= igtl.HEADER_SIZE:
-            header = igtl.decode_header(buffer[: igtl.HEADER_SIZE])
-            end = igtl.HEADER_SIZE + header.body_size
-            if len(buffer) < end:
-                break
-            message = igtl.decode_body(header, buffer[igtl.HEADER_SIZE : end])
-            buffer = buffer[end:]
+        messages, buffer = igtl.decode_available(buffer + chunk)
+        for message in messages:
             if message.type == "TRANSFORM" and message.device == "ProbeToTracker":
                 latencies.append((message.timestamp_s, time.time()))
     sock.close()

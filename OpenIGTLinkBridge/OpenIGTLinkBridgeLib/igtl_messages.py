@@ -202,6 +202,23 @@ def decode(data):
     return decode_body(header, data[HEADER_SIZE : HEADER_SIZE + header.body_size])
 
 
+def decode_available(buffer):
+    """Decode every complete message at the start of ``buffer`` (bytes): returns (messages, the bytes left over).
+
+    Raises MessageError at the first message that cannot be decoded (a client that trusts its peer less, like
+    the receiver, decodes message by message instead).
+    """
+    messages = []
+    while len(buffer) >= HEADER_SIZE:
+        header = decode_header(buffer[:HEADER_SIZE])
+        end = HEADER_SIZE + header.body_size
+        if len(buffer) < end:
+            break
+        messages.append(decode_body(header, buffer[HEADER_SIZE:end]))
+        buffer = buffer[end:]
+    return messages, buffer
+
+
 def _split_version2(header, body):
     if len(body) < EXTENDED_HEADER_SIZE:
         raise MessageError(f"{header.type} {header.device!r}: version 2 body shorter than its extended header")

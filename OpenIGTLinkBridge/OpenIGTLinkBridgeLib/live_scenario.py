@@ -9,6 +9,8 @@ from .ndi_simulator import Scenario, VegaSimulator
 
 #: Tip of the probe in the probe tool's frame (mm): below the first marker of NDI 8700340, along its axis.
 PROBE_TIP_MM = np.array([0.0, 0.0, -110.0])
+#: Height (mm) to which the tip is lifted off the bone between touches.
+LIFT_MM = 20.0
 DEFAULT_REFERENCE_TO_TRACKER = np.array(
     [[0.0, -1.0, 0.0, 40.0], [0.0, 0.0, -1.0, 120.0], [1.0, 0.0, 0.0, -1600.0], [0.0, 0.0, 0.0, 1.0]]
 )
@@ -16,13 +18,16 @@ DEFAULT_REFERENCE_TO_TRACKER = np.array(
 
 @dataclass(frozen=True)
 class TouchScript:
-    """When the tip rests on which point: touch ``i`` spans [start + i * period, start + i * period + dwell_s]."""
+    """When the tip rests on which point. Until ``start_s`` the tip circles ``LIFT_MM`` above the first point
+    (a hand waiting in the air is never still, and a tip held still in the air would be taken for a touch);
+    touch ``i`` then spans [start + i * period + move_s, start + (i + 1) * period] (period = move_s + dwell_s),
+    each reached by a lifted move of ``move_s``; after the last touch the tip lifts off and circles again."""
 
     points_reference: np.ndarray
     reference_to_tracker: np.ndarray
     dwell_s: float
     move_s: float
-    start_s: float = 0.3
+    start_s: float = 0.5
 
     @property
     def period_s(self):
@@ -30,27 +35,50 @@ class TouchScript:
 
     @property
     def duration_s(self):
-        return self.start_s + len(self.points_reference) * self.period_s
+        """Time of the last lift-off's end: every touch is over."""
+        return self.start_s + len(self.points_reference) * self.period_s + self.move_s
+
+    def touch_interval(self, index):
+        """(start, end) in s of touch ``index``."""
+        end = self.start_s + (index + 1) * self.period_s
+        return end - self.dwell_s, end
+
+    def tip(self, time_s):
+        """Tip position (3,) in reference coordinates at ``time_s``."""
+        points = self.points_reference
+        lift = np.array([0.0, 0.0, LIFT_MM])
+        position = (time_s - self.start_s) / self.period_s
+        index = int(np.floor(position))
+        phase = (position - index) * self.period_s
+        if index < 0:
+            return points[0] + lift + _circle(time_s - self.start_s)
+        if index >= len(points):  # lifted off after the last touch
+            since = time_s - self.start_s - len(points) * self.period_s
+            if since >= self.move_s:
+                return points[-1] + lift + _circle(since - self.move_s)
+            return points[-1] + lift * np.sin(0.5 * np.pi * since / self.move_s)
+        if phase >= self.move_s:
+            return points[index]
+        fraction = phase / self.move_s
+        start = points[index - 1] if index > 0 else points[0] + lift
+        return (1 - fraction) * start + fraction * points[index] + lift * np.sin(np.pi * fraction) * (index > 0)
 
     def probe_to_reference(self, time_s):
-        """ProbeToReference at ``time_s``: the tip on a point while dwelling, sliding to the next between."""
+        """ProbeToReference at ``time_s``: the tip (above) with the probe tilted differently for each touch."""
         position = (time_s - self.start_s) / self.period_s
         index = int(np.clip(np.floor(position), 0, len(self.points_reference) - 1))
-        phase = (position - np.floor(position)) * self.period_s
-        tip = self.points_reference[index]
-        if time_s > self.start_s and phase > self.dwell_s and index + 1 < len(self.points_reference):
-            fraction = (phase - self.dwell_s) / self.move_s
-            tip = (
-                (1 - fraction) * tip
-                + fraction * self.points_reference[index + 1]
-                + np.array([0, 0, 20.0]) * (np.sin(np.pi * fraction))
-            )  # lifted off the bone between touches
         tilt = 0.3 * np.sin(0.7 * index + 1.0)
         rotation = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(tilt), -np.sin(tilt)], [0.0, np.sin(tilt), np.cos(tilt)]])
         transform = np.eye(4)
         transform[:3, :3] = rotation
-        transform[:3, 3] = tip - rotation @ PROBE_TIP_MM
+        transform[:3, 3] = self.tip(time_s) - rotation @ PROBE_TIP_MM
         return transform
+
+
+def _circle(time_s, radius_mm=10.0, period_s=0.5):
+    """Offset (3,) of a tip circling in the air, zero at ``time_s`` = 0 (so the motion joins on smoothly)."""
+    angle = 2 * np.pi * time_s / period_s
+    return radius_mm * np.array([np.cos(angle) - 1.0, np.sin(angle), 0.0])
 
 
 def demo_simulator(
@@ -65,11 +93,13 @@ def demo_simulator(
     disconnect_after_s=None,
     rate_hz=60.0,
     port=0,
+    stepped=False,
 ):
     """A VegaSimulator (not started) playing a TouchScript, and the script.
 
     ``points_reference`` default: the 40 probe points of the demo's tibia (seed 0). ``dropout(time_s)`` and
-    ``out_of_volume(time_s)`` make the probe MISSING or out of volume when they return True.
+    ``out_of_volume(time_s)`` make the probe MISSING or out of volume when they return True; ``stepped``: see
+    ``ndi_simulator.Scenario``.
     """
     from RAMSICPRegistrationLib.io.ndi_tools import tool_rom_path
 
@@ -99,6 +129,7 @@ def demo_simulator(
         seed=seed,
         disconnect_after_s=disconnect_after_s,
         rate_hz=rate_hz,
+        stepped=stepped,
     )
     return VegaSimulator(scenario, port=port), script
 

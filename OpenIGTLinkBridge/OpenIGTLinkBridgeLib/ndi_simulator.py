@@ -5,7 +5,8 @@ Run it as its own process (``python -m OpenIGTLinkBridgeLib.ndi_simulator --port
 PDIS, TSTART, TSTOP and TX (option 0001), checks every command's CRC (ERROR04 otherwise) and refuses commands in
 the wrong mode with NDI's error codes. Tools are recognised by the ``.rom`` data written with PVWR and posed by
 a ``Scenario``: a function of time giving each tool's ToolToTracker (or None: MISSING), with optional noise,
-out-of-volume flags and a scripted disconnect.
+out-of-volume flags and a scripted disconnect. Tracking runs in frames of ``1 / rate_hz``: each TX answers the
+current frame's poses, with noise drawn for that frame (and tool) from the scenario's seed.
 """
 
 import argparse
@@ -50,7 +51,9 @@ class Scenario:
     """What the simulated tracker sees. ``poses(time_s)`` maps a tool's ROM bytes to its ToolToTracker or None.
 
     ``out_of_volume(time_s, rom)`` flags a pose as out of the characterised volume; ``disconnect_after_s``
-    closes the connection once, at that time after TSTART, as a cable pulled out would.
+    closes the connection once, at that time after TSTART, as a cable pulled out would. ``stepped``: each TX
+    answers the next frame whatever the time (a tracker read exactly once per frame), so that a session's
+    frames do not depend on how punctually it is polled: reproducible demos and tests on a loaded machine.
     """
 
     poses: object
@@ -59,6 +62,7 @@ class Scenario:
     seed: int = 0
     disconnect_after_s: float = None
     rate_hz: float = 60.0
+    stepped: bool = False
 
 
 @dataclass
@@ -73,12 +77,13 @@ class VegaSimulator:
 
     def __init__(self, scenario, host="127.0.0.1", port=0):
         self.scenario = scenario
-        self.rng = np.random.default_rng(scenario.seed)
         self.server = socket.create_server((host, port))
+        self.server.settimeout(0.2)  # here, not in serve(): stop() may close the socket before the thread runs
         self.address = self.server.getsockname()
         self._stop = threading.Event()
         self._thread = None
         self._disconnected_once = False
+        self._frames_answered = 0
 
     def start(self):
         self._thread = threading.Thread(target=self.serve, name="VegaSimulator", daemon=True)
@@ -92,7 +97,6 @@ class VegaSimulator:
             self._thread.join(timeout=5)
 
     def serve(self):
-        self.server.settimeout(0.2)
         while not self._stop.is_set():
             try:
                 connection, _ = self.server.accept()
@@ -166,6 +170,7 @@ class VegaSimulator:
         if name in ("PVWR", "PINIT", "PENA", "PDIS"):
             return self._port_command(name, arguments, ports, tracking_since), tracking_since
         if name == "TSTART":
+            self._frames_answered = 0
             return "OKAY", time.monotonic()
         if name == "TSTOP":
             return "OKAY", None
@@ -221,8 +226,13 @@ class VegaSimulator:
         return "OKAY"
 
     def _tx(self, ports, tracking_since):
-        elapsed = time.monotonic() - tracking_since
-        frame = int(elapsed * self.scenario.rate_hz)
+        # Like a real tracker, one measurement per frame: the poses are taken at the frame's time and its noise
+        # is drawn for that frame, so asking twice within a frame returns the same answer.
+        if self.scenario.stepped:
+            frame, self._frames_answered = self._frames_answered, self._frames_answered + 1
+        else:
+            frame = int((time.monotonic() - tracking_since) * self.scenario.rate_hz)
+        elapsed = frame / self.scenario.rate_hz
         poses_now = self.scenario.poses(elapsed)
         replies = []
         for handle, port in sorted(ports.items()):
@@ -234,7 +244,8 @@ class VegaSimulator:
             if matrix is None:
                 replies.append(ToolPose(handle, "missing", port_status=0x11, frame=frame))
                 continue
-            translation = matrix[:3, 3] + self.rng.normal(scale=self.scenario.noise_mm / np.sqrt(3), size=3)
+            noise = np.random.default_rng((self.scenario.seed, frame, handle)).normal(size=3)
+            translation = matrix[:3, 3] + noise * self.scenario.noise_mm / np.sqrt(3)
             status = 0x31
             if self.scenario.out_of_volume is not None and self.scenario.out_of_volume(elapsed, rom):
                 status |= 0x80

@@ -6,6 +6,11 @@ nodes that SlicerOpenIGTLink already feeds are shared), keeps ``ProbeToReference
 ProbeToTracker`` (paper eq. 2) up to date, and tracks each tool's status: valid, missing (flagged invalid by
 the server), stale (no update for ``stale_after_s``) or disconnected. Malformed messages are logged and skipped;
 a broken stream (bad header) resets the connection.
+
+``start_recording(path)`` records every TRANSFORM that arrives, valid or not, to a PLUS sequence file
+(``plus_sequence``) that PLUS, Slicer's Sequences module and ``ramsicp-tracker-server --replay`` read: the
+messages of one tracker frame (same time stamp) form one file frame, in the order they arrived, with their
+status; the file on disk is complete after every frame. ``stop_recording()`` closes it.
 """
 
 import errno
@@ -64,6 +69,11 @@ class TrackerReceiver:
         self._resolution = None  # {"address": ...} or {"error": ...}, filled by a resolver thread for a host name
         self.resolution_error = None  # why the host name could not be resolved at the last attempt
         self.on_update = None  # optional callable(device, matrix, timestamp_s) after each valid transform
+        self.recorder = None  # the SequenceRecorder while recording
+        self.recording_error = None  # why a recording stopped by itself (a write failed), else None
+        self._frame_stamp = None
+        self._frame_poses = {}  # device -> (matrix, status) of the frame being received
+        self._recorded_devices = {}
 
     # -- connection ----------------------------------------------------------------------------------------
     @property
@@ -139,6 +149,65 @@ class TrackerReceiver:
             if sock is not None:
                 sock.close()
         self.socket = self._pending = None
+        self.stop_recording()
+
+    # -- recording -----------------------------------------------------------------------------------------
+    def start_recording(self, path):
+        """Record the transforms received from now on to the PLUS sequence file ``path`` (.igs.mha, .seq.mha).
+
+        Raises ``plus_sequence.SequenceFileError`` (a ValueError) when the file cannot be written. Returns the
+        SequenceRecorder; its ``frames`` counts the frames written so far.
+        """
+        from .plus_sequence import SequenceRecorder
+
+        self.stop_recording()
+        self.recorder = SequenceRecorder(path)
+        self.recording_error = None
+        self._frame_stamp, self._frame_poses, self._recorded_devices = None, {}, {}
+        logger.info("recording the tracker feed to %s", path)
+        return self.recorder
+
+    def stop_recording(self):
+        """Write the last frame and close the file; returns its path (None when not recording)."""
+        if self.recorder is None:
+            return None
+        self._write_frame()
+        recorder, self.recorder = self.recorder, None
+        path = recorder.close()
+        logger.info("recorded %d frames to %s", recorder.frames, path)
+        return path
+
+    def _record(self, message, valid):
+        if message.timestamp_s != self._frame_stamp or message.device in self._frame_poses:
+            self._write_frame()  # a new time stamp (or a device again) starts the next tracker frame
+            self._frame_stamp = message.timestamp_s
+        status = "OK" if valid else message.metadata.get("TransformStatus", "INVALID")
+        if not valid and status.strip().upper() in ("OK", ""):
+            status = "INVALID"  # flagged invalid by TransformValid: never recorded as OK
+        self._frame_poses[message.device] = (message.content, status)
+        self._recorded_devices.setdefault(message.device, None)
+
+    def _write_frame(self):
+        from .plus_sequence import SequenceFileError, TrackedFrame
+
+        if self.recorder is None or not self._frame_poses:
+            return
+        poses = dict(self._frame_poses)
+        for device in self._recorded_devices:  # a device seen before but not sent now (version 1): invalid
+            poses.setdefault(device, (np.eye(4), "INVALID"))
+        frame = TrackedFrame(
+            self._frame_stamp,
+            {device: matrix for device, (matrix, _) in poses.items()},
+            {device: status for device, (_, status) in poses.items()},
+        )
+        self._frame_poses = {}
+        try:
+            self.recorder.add(frame)
+        except SequenceFileError as error:  # e.g. the disk is full: keep tracking, keep what was written
+            self.recording_error = str(error)
+            logger.error("recording stopped: %s", error)
+            recorder, self.recorder = self.recorder, None
+            recorder.close()
 
     # -- polling -------------------------------------------------------------------------------------------
     def poll(self):
@@ -192,6 +261,8 @@ class TrackerReceiver:
         self.last_update[device] = self.clock()
         valid = message.metadata.get("TransformValid", "true").lower() != "false"
         self.valid[device] = valid
+        if self.recorder is not None:
+            self._record(message, valid)
         if not valid:
             return
         self.matrices[device] = message.content

@@ -18,7 +18,8 @@ Points are (N, 3) float arrays in mm, transforms (4, 4) arrays; ``AToB`` maps fr
 The sub-packages are the layers of DESIGN.md, each importing only those before it:
 
 =============== ==========================================================================================
-``core``        the registration itself (numpy/scipy only): paired points, ICP, RAMSICP, sweep, metrics
+``core``        the registration itself (numpy/scipy only): paired points, ICP, RAMSICP, sweep, metrics,
+                hold-still detection of probe touches
 ``io``          point and surface files, VTK array conversion, the shipped NDI tool geometries
 ``image``       CT volumes to the IPC and the marker-sphere centres
 ``simulation``  the virtual patient, CT phantoms and the shipped bone meshes
@@ -63,6 +64,10 @@ _EXPORTS = {
     "make_transform": "core.transforms",
     "probe_to_reference": "core.transforms",
     "pivot_calibration": "core.pivot",
+    # core: probe-point collection by holding the tip still
+    "HoldStillDetector": "core.hold_still",
+    "Touch": "core.hold_still",
+    "find_touches": "core.hold_still",
     # io: files
     "PointFileError": "io.point_files",
     "read_points": "io.point_files",

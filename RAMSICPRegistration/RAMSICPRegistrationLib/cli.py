@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S, HoldStillDetector
 from .core.registration import DEFAULT_METHOD, METHODS, POLICIES, register
 from .core.surface_index import SurfaceIndex
 from .core.sweep import make_scales
@@ -114,7 +115,46 @@ def _parser():
         help="play one trial through the whole tracking chain: Vega simulator -> NDI driver -> "
         "OpenIGTLink server -> receiver (MRML) -> point collection -> CR-RAMSICP",
     )
+    demo.add_argument(
+        "--record",
+        type=Path,
+        metavar="FILE",
+        help="with --live: record the tracker feed to a PLUS sequence file (.igs.mha), for "
+        "ramsicp-tracker-server --replay and ramsicp collect --recording",
+    )
     demo.set_defaults(run=_run_demo)
+
+    collect = commands.add_parser(
+        "collect",
+        help="the touches (hold-still periods) of a probe in a recorded session, as probe points",
+        description="Finds where the probe tip was held still (within --hold-still-mm for --hold-still-s) in a "
+        "PLUS sequence file and writes each touch's mean tip position in reference coordinates.",
+    )
+    collect.add_argument("--recording", type=Path, required=True, help="PLUS sequence file (.igs.mha, .seq.mha)")
+    collect.add_argument("--tool", default="StylusToTracker", help="the probe's transform (default StylusToTracker)")
+    collect.add_argument(
+        "--reference", default="ReferenceToTracker", help="the reference body's transform (default ReferenceToTracker)"
+    )
+    collect.add_argument(
+        "--tip", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"), help="the tip in the tool's frame (mm)"
+    )
+    collect.add_argument(
+        "--hold-still-mm",
+        type=float,
+        default=DEFAULT_STILL_MM,
+        help=f"radius the tip stays within during a touch (default {DEFAULT_STILL_MM:g} mm)",
+    )
+    collect.add_argument(
+        "--hold-still-s",
+        type=float,
+        default=DEFAULT_STILL_S,
+        help=f"shortest touch (default {DEFAULT_STILL_S:g} s)",
+    )
+    collect.add_argument(
+        "--out", type=Path, required=True, help="points file for register --ppc (.csv .txt .fcsv .mrk.json .npy)"
+    )
+    collect.add_argument("--json", type=Path, help="write every touch (frames, times, spread) and the frame timing")
+    collect.set_defaults(run=_run_collect)
 
     ipc = commands.add_parser("ipc", help="CT -> image point cloud (IPC) and marker-sphere centres")
     ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder")
@@ -257,6 +297,9 @@ class _ProgressBar:
 
 
 def _run_demo(arguments):
+    if arguments.record is not None and not arguments.live:
+        raise ValueError("--record records the tracker feed: use it with --live")
+    _check_output(arguments.record, "--record", (".mha",))
     if arguments.live:
         return _run_live_demo(arguments)
     clock = time.perf_counter()
@@ -338,7 +381,13 @@ def _run_live_demo(arguments):
     fle = patient.marker_fle_for_cr_tre(PAPER_TRE_MM["CR"][0], seed=arguments.seed)
     trial = patient.simulate_trial(np.random.default_rng(arguments.seed + 1), fle, probe_noise_mm=0.0)
     result = run_live_demo(
-        slicer.vtkMRMLScene(), patient, SurfaceIndex(ipc), trial, PROBE_NOISE_MM, progress=_ProgressBar()
+        slicer.vtkMRMLScene(),
+        patient,
+        SurfaceIndex(ipc),
+        trial,
+        PROBE_NOISE_MM,
+        progress=_ProgressBar(),
+        record=arguments.record,
     )
     error = result.collection_error_mm
     print(
@@ -351,8 +400,86 @@ def _run_live_demo(arguments):
             f"  CR-RAMSICP on the {label:<14} L = {registered.scale:g}: TRE {registered.tre_mm:.2f} mm, "
             f"probe points {registered.ppc_rms_mm:.2f} mm RMS"
         )
+    spreads = [touch.spread_mm for touch in result.touches]
+    print(
+        f"  touches held {np.mean([touch.duration_s for touch in result.touches]):.2f} s on average, "
+        f"tip spread {np.median(spreads):.2f} mm RMS (median), {max(spreads):.2f} mm max"
+    )
+    if result.recording is not None:
+        print(f"  recorded to {result.recording} (replay: ramsicp-tracker-server --replay {result.recording})")
     print(f"  total {time.perf_counter() - clock:.1f} s")
     return 0
+
+
+def _run_collect(arguments):
+    from OpenIGTLinkBridgeLib.plus_sequence import read_sequence
+    from OpenIGTLinkBridgeLib.recorded_touches import find_recorded_touches, frame_timing
+
+    HoldStillDetector(arguments.hold_still_mm, arguments.hold_still_s)  # refuses bad settings before any work
+    _check_output(arguments.out, "--out", POINT_SUFFIXES)
+    _check_output(arguments.json, "--json", (".json",))
+    recording = read_sequence(arguments.recording)
+    found = find_recorded_touches(
+        recording,
+        arguments.tool,
+        arguments.reference,
+        arguments.tip,
+        arguments.hold_still_mm,
+        arguments.hold_still_s,
+    )
+    timing = frame_timing(recording)
+    print(
+        f"recording        {arguments.recording}: {timing['frames']} frames over {timing['duration_s']:.1f} s"
+        + (
+            f" ({timing['rate_hz']:.1f} Hz; interval median {timing['interval_median_ms']:.1f} ms, "
+            f"SD {timing['interval_sd_ms']:.1f} ms, {timing['interval_min_ms']:.1f}-{timing['interval_max_ms']:.1f} ms)"
+            if "rate_hz" in timing
+            else ""
+        )
+    )
+    print(f"tool             {arguments.tool} in {arguments.reference}: valid in {len(found.frames)} frames")
+    if not found.touches:
+        raise ValueError(
+            f"{arguments.recording}: no touch found (the tip never stayed within {arguments.hold_still_mm:g} mm for "
+            f"{arguments.hold_still_s:g} s); try a larger --hold-still-mm or a shorter --hold-still-s"
+        )
+    start = recording.timestamps_s[0]
+    print("touch   x (mm)     y (mm)     z (mm)     frames        time (s from start)  spread (mm RMS)")
+    labels = []
+    for number, touch in enumerate(found.touches, start=1):
+        x, y, z = touch.position
+        print(
+            f"{number:5d} {x:9.2f}  {y:9.2f}  {z:9.2f}   {touch.first_frame:5d}-{touch.last_frame:<5d}  "
+            f"{touch.start_s - start:8.2f}-{touch.end_s - start:<8.2f}  {touch.spread_mm:.3f}"
+        )
+        labels.append(f"touch {number}: frames {touch.first_frame}-{touch.last_frame}, spread {touch.spread_mm:.3f} mm")
+    write_points(arguments.out, np.array([touch.position for touch in found.touches]), labels=labels)
+    print(f"{len(found.touches)} touches -> {arguments.out} (reference coordinates)")
+    if arguments.json:
+        document = {
+            "recording": str(arguments.recording),
+            "tool": arguments.tool,
+            "reference": arguments.reference,
+            "tip_mm": list(arguments.tip),
+            "hold_still_mm": arguments.hold_still_mm,
+            "hold_still_s": arguments.hold_still_s,
+            "timing": timing,
+            **found.to_dict(),
+        }
+        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    return 0
+
+
+def _check_output(path, option, suffixes):
+    """Refuse an output path that cannot be written before any work is done."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file name")
+    if not any(str(path).lower().endswith(suffix) for suffix in suffixes):
+        raise ValueError(f"{option} {path}: use one of {', '.join(suffixes)}")
+    if not path.parent.is_dir():
+        raise ValueError(f"{option} {path}: the folder {path.parent} does not exist")
 
 
 def _run_ipc(arguments):

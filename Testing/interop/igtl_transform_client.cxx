@@ -1,6 +1,8 @@
-// Receives TRANSFORM messages from an OpenIGTLink server with the OpenIGTLink C++ library and prints each
-// matrix's 12 float32 values as hexadecimal bit patterns (bit-exact comparison in the tests).
+// Receives TRANSFORM messages from an OpenIGTLink server with the OpenIGTLink C++ library and prints, per message,
+// the device name, the matrix's 12 float32 values as hexadecimal bit patterns (bit-exact comparison in the
+// tests) and the time it arrived (s, steady clock; for rate measurements).
 // Usage: igtl_transform_client HOST PORT COUNT
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -36,7 +38,8 @@ int main(int argc, char* argv[]) {
         std::memcpy(&bits, &matrix[row][column], sizeof bits);
         std::printf(" %08x", bits);
       }
-    std::printf("\n");
+    double now = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+    std::printf(" %.6f\n", now);
     std::fflush(stdout);
     ++received;
   }
