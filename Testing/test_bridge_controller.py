@@ -13,8 +13,9 @@ import pytest
 from conftest import headless_scene
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
-from OpenIGTLinkBridgeLib.bridge_controller import BridgeController, parse_ndi_address  # noqa: E402
+from OpenIGTLinkBridgeLib.bridge_controller import BridgeController  # noqa: E402
 from OpenIGTLinkBridgeLib.live_scenario import DEFAULT_REFERENCE_TO_TRACKER  # noqa: E402
+from OpenIGTLinkBridgeLib.ndi_driver import parse_ndi_address  # noqa: E402
 from RAMSICPRegistrationLib.navigation.navigation import matrix_of  # noqa: E402
 
 
@@ -71,7 +72,7 @@ def test_a_busy_port_and_bad_addresses_are_messages(free_port):
     controller.parameters.trackerSource = "ndi-network"
     controller.parameters.trackerAddress = "10.0.0.5:abc"
     controller.run("start_tracker")
-    assert "the port must be a number from 1 to 65535" in controller.status().message
+    assert "10.0.0.5:abc: the port after ':' must be a number from 1 to 65535" in controller.status().message
     controller.parameters.trackerSource = "ndi-serial"
     controller.parameters.trackerAddress = " "
     controller.run("start_tracker")

@@ -22,12 +22,12 @@ from dataclasses import dataclass
 from RAMSICPRegistrationLib.navigation.parameters import Parameter, ParameterSet
 
 from .igtl_server import DEFAULT_NAMES, DEFAULT_PORT, TrackerServer
+from .ndi_driver import NDI_PORT, parse_ndi_address
 from .receiver import TrackerReceiver
 
 logger = logging.getLogger(__name__)
 
 SOURCES = ("ndi-network", "ndi-serial", "simulator")
-NDI_NETWORK_PORT = 8765
 
 BRIDGE = ParameterSet(
     "OpenIGTLinkBridge",
@@ -52,18 +52,6 @@ class BridgeStatus:
     tracker: str
     message: str = ""
     message_is_error: bool = False
-
-
-def parse_ndi_address(text):
-    """'HOST' or 'HOST:PORT' of an NDI Vega -> (host, port); ValueError with what is wrong."""
-    host, _, port_text = str(text).strip().partition(":")
-    if not host:
-        raise ValueError("NDI tracker address is empty: give the Vega's HOST or HOST:PORT (port 8765 by default)")
-    if not port_text:
-        return host, NDI_NETWORK_PORT
-    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
-        raise ValueError(f"NDI tracker address {text!r}: the port must be a number from 1 to 65535")
-    return host, int(port_text)
 
 
 class BridgeController:
@@ -161,7 +149,7 @@ class BridgeController:
         else:
             if not str(address).strip():
                 raise ValueError("give the Polaris's serial device, e.g. /dev/ttyUSB0 or COM3")
-            host, ndi_port, serial = None, NDI_NETWORK_PORT, address.strip()
+            host, ndi_port, serial = None, NDI_PORT, address.strip()
 
         def open_ndi():
             return open_tracker(host, ndi_port, serial, roms)

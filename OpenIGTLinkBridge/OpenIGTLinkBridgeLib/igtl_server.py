@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import igtl_messages as igtl
+from .ndi_driver import NDI_PORT, parse_ndi_address
 
 logger = logging.getLogger(__name__)
 
@@ -291,7 +292,6 @@ _IDENTITY = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [
 
 EXIT_BAD_INPUT = 2
 MAX_RATE_HZ = 1000.0
-NDI_PORT = 8765
 
 
 def _parser():
@@ -364,16 +364,10 @@ def _check_arguments(arguments):
     if arguments.replay is None and (arguments.loop or arguments.rename or arguments.speed != 1.0):
         raise ValueError("--loop, --speed and --rename only apply to --replay FILE")
     if arguments.ndi is not None:
-        host, _, port_text = arguments.ndi.partition(":")
-        if not host:
-            raise ValueError(f"--ndi {arguments.ndi!r}: give the tracker's address, e.g. --ndi 169.254.8.50")
         try:
-            port = int(port_text or NDI_PORT)
-        except ValueError:
-            port = -1
-        if not 1 <= port <= 65535:
-            raise ValueError(f"--ndi {arguments.ndi}: the port after ':' must be a number from 1 to 65535")
-        arguments.ndi_address = (host, port)
+            arguments.ndi_address = parse_ndi_address(arguments.ndi)
+        except ValueError as error:
+            raise ValueError(f"--ndi {error}") from None
     for option, path in (("--reference-rom", arguments.reference_rom), ("--probe-rom", arguments.probe_rom)):
         if path is not None:
             _check_rom(option, path)

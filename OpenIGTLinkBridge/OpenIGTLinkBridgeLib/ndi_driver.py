@@ -15,6 +15,8 @@ from .ndi_protocol import check_reply, frame_command, parse_tx
 logger = logging.getLogger(__name__)
 
 DEFAULT_TIMEOUT_S = 2.0
+#: NDI Vega's Combined API port.
+NDI_PORT = 8765
 
 
 class TrackerConnectionError(ConnectionError):
@@ -80,7 +82,7 @@ class _SerialLink:
 class NDITracker:
     """One NDI tracker: ``connect``, ``load_tool`` (a .rom), ``start``, ``poses`` (TX), ``stop``, ``close``."""
 
-    def __init__(self, host=None, port=8765, serial_device=None, timeout_s=DEFAULT_TIMEOUT_S):
+    def __init__(self, host=None, port=NDI_PORT, serial_device=None, timeout_s=DEFAULT_TIMEOUT_S):
         if (host is None) == (serial_device is None):
             raise ValueError("give the tracker's network host or its serial device, not both")
         self.host, self.port, self.serial_device, self.timeout_s = host, port, serial_device, timeout_s
@@ -145,7 +147,21 @@ class NDITracker:
                 self.link = None
 
 
-def open_tracker(host=None, port=8765, serial_device=None, roms=None, timeout_s=DEFAULT_TIMEOUT_S):
+def parse_ndi_address(text):
+    """'HOST' or 'HOST:PORT' of an NDI Vega -> (host, port); ValueError saying what is wrong."""
+    host, _, port_text = str(text).strip().partition(":")
+    if not host:
+        raise ValueError(f"{text!r}: give the tracker's address, e.g. 169.254.8.50 (port {NDI_PORT} by default)")
+    try:
+        port = int(port_text or NDI_PORT)
+    except ValueError:
+        port = -1
+    if not 1 <= port <= 65535:
+        raise ValueError(f"{text}: the port after ':' must be a number from 1 to 65535")
+    return host, port
+
+
+def open_tracker(host=None, port=NDI_PORT, serial_device=None, roms=None, timeout_s=DEFAULT_TIMEOUT_S):
     """Connect, load the tools and start tracking; returns the NDITracker.
 
     ``roms``: tool name -> .rom path or bytes; by default the reference body NDI 8700339 as 'Reference' and
