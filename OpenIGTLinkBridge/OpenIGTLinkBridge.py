@@ -86,6 +86,7 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         for button, action in BUTTON_ACTIONS.items():
             getattr(self.ui, button).connect("clicked(bool)", lambda checked, action=action: self.run(action))
         self.ui.startTrackerButton.connect("clicked(bool)", self.onStartTracker)
+        self.ui.recordButton.connect("toggled(bool)", self.onRecordToggled)
         # The feed keeps running while other modules are shown: the timer runs from setup to cleanup.
         self._timer = qt.QTimer(self.parent)
         self._timer.setInterval(POLL_INTERVAL_MS)
@@ -124,9 +125,20 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         if self._parameterNode:
             self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
 
-    def run(self, action):
+    def run(self, action, *args):
         with slicer.util.tryWithErrorDisplay(_("Unexpected error; the details are in the log."), waitCursor=True):
-            self.logic.controller.run(action)
+            self.logic.controller.run(action, *args)
+        self.showStatus()
+
+    def onRecordToggled(self, recording):
+        if not recording:
+            self.run("stop_recording")
+            return
+        path = qt.QFileDialog.getSaveFileName(
+            None, _("Record the tracking to"), "", _("PLUS sequence file (*.igs.mha *.seq.mha)")
+        )
+        if path:
+            self.run("start_recording", path)
         self.showStatus()
 
     def onStartTracker(self):
@@ -157,6 +169,12 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         self.ui.referenceStatusLabel.text = f"ReferenceToTracker: {tools['ReferenceToTracker']}"
         self.ui.probeStatusLabel.text = f"ProbeToTracker: {tools['ProbeToTracker']}"
         self.ui.trackerStatusLabel.text = status.tracker
+        self.ui.recordingStatusLabel.text = status.recording
+        recording = status.recording.startswith("recording:")
+        if self.ui.recordButton.checked != recording:
+            wasBlocked = self.ui.recordButton.blockSignals(True)
+            self.ui.recordButton.checked = recording
+            self.ui.recordButton.blockSignals(wasBlocked)
         self.ui.messageLabel.text = status.message
         self.ui.messageLabel.styleSheet = "color: #c62828" if status.message_is_error else ""
 

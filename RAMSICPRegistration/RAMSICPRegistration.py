@@ -95,6 +95,8 @@ class RAMSICPRegistrationParameterNode:
     markersPatient: vtkMRMLMarkupsFiducialNode
     probePoints: vtkMRMLMarkupsFiducialNode
     autoCollectDistanceMm: Annotated[float, WithinRange(0.5, 50.0)] = 5.0
+    holdStillMm: Annotated[float, WithinRange(0.2, 10.0)] = 1.0
+    holdStillS: Annotated[float, WithinRange(0.05, 5.0)] = 0.5
     method: Annotated[str, Choice(list(METHODS))] = DEFAULT_METHOD
     policy: Annotated[str, Choice(list(POLICIES))] = "rms-plateau"
     referenceToImage: vtkMRMLLinearTransformNode
@@ -133,6 +135,7 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.ui.processCTButton.connect("clicked(bool)", self.onProcessCT)
         self.ui.pivotButton.connect("toggled(bool)", self.onPivotToggled)
         self.ui.autoCollectCheckBox.connect("toggled(bool)", self.onAutoCollectToggled)
+        self.ui.holdStillCheckBox.connect("toggled(bool)", self.onHoldStillToggled)
         self.ui.saveButton.connect("clicked(bool)", self.onSave)
         self._timer = qt.QTimer(self.parent)
         self._timer.setInterval(REFRESH_INTERVAL_MS)
@@ -222,6 +225,9 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
     def onAutoCollectToggled(self, enabled):
         self.run("set_auto_collect", enabled)
 
+    def onHoldStillToggled(self, enabled):
+        self.run("set_hold_still_collect", enabled)
+
     def onSave(self):
         path = qt.QFileDialog.getSaveFileName(
             None, _("Save the navigation scene"), "", _("Medical Reality Bundle (*.mrb);;MRML scene (*.mrml)")
@@ -268,6 +274,9 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self._setCheckedQuietly(self.ui.pivotButton, status.pivot_recording)
         self.ui.autoCollectCheckBox.enabled = status.auto_collect or reasons["set_auto_collect"] is None
         self._setCheckedQuietly(self.ui.autoCollectCheckBox, status.auto_collect)
+        self.ui.holdStillCheckBox.enabled = status.hold_still_collect or reasons["set_hold_still_collect"] is None
+        self._setCheckedQuietly(self.ui.holdStillCheckBox, status.hold_still_collect)
+        self.ui.holdStillCheckBox.styleSheet = "color: #2e7d32; font-weight: bold" if status.holding else ""
         self.ui.pivotResultLabel.text = (
             _("recording: {count} poses").format(count=status.pivot_poses) if status.pivot_recording else ""
         )

@@ -112,3 +112,37 @@ def test_a_host_name_is_resolved_off_the_calling_thread(monkeypatch):
         controller, lambda: "cannot resolve the host name 'tracker.example'" in (controller.status().connection)
     )
     controller.close()
+
+
+def test_record_the_feed_from_the_module_and_read_it_back(free_port, tmp_path):
+    from OpenIGTLinkBridgeLib.plus_sequence import read_sequence
+
+    scene = headless_scene()
+    controller = BridgeController(scene)
+    controller.parameters.trackerSource = "simulator"
+    controller.parameters.port = free_port
+    path = tmp_path / "session.igs.mha"
+    try:
+        assert controller.run("start_recording", path) is None
+        assert (
+            controller.status().message
+            == "connect to a tracker first: the recording holds what the connection receives"
+        )
+        controller.run("start_tracker")
+        assert poll_until(controller, lambda: tool_states(controller)["ReferenceToTracker"] == "valid")
+        controller.run("start_recording", path)
+        assert poll_until(
+            controller,
+            lambda: (
+                "recording: " in controller.status().recording and int(controller.status().recording.split()[1]) >= 20
+            ),
+        )
+        assert controller.run("stop_recording") == path
+        assert controller.status().message.startswith("recorded ") and controller.status().recording == ""
+    finally:
+        controller.close()
+    recording = read_sequence(path)
+    assert {"ReferenceToTracker", "ProbeToTracker"} <= set(recording.transform_names) and len(recording.frames) >= 20
+    matrices, valid = recording.matrices("ReferenceToTracker")
+    assert valid.all()
+    np.testing.assert_allclose(matrices[-1], DEFAULT_REFERENCE_TO_TRACKER, atol=1e-4)  # float32 on the wire

@@ -280,3 +280,40 @@ def test_every_action_has_an_availability_and_run_refuses_unknown_ones(scene):
     with pytest.raises(ValueError, match="unknown action 'explode'"):
         controller.run("explode")
     controller.close()
+
+
+def test_hold_still_collection_takes_the_mean_of_each_hold(tracked):
+    """Three holds of 0.6 s at 60 Hz with 0.1 mm tremor, the tip moving 20 mm between them: three points, each
+    the mean of its own hold's frames (computed here by hand), taken when the tip moves away or when turned off."""
+    controller, probe = tracked
+    rng = np.random.default_rng(11)
+    now = {"s": 0.0}
+    controller.pose_time = lambda node: now["s"]  # the frames' own time stamps, as our receiver provides
+    holds = np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0], [20.0, 20.0, 0.0]])
+    frames, expected = [], []
+    for number, point in enumerate(holds):
+        held = point + rng.normal(scale=0.1, size=(36, 3))  # 0.6 s at 60 Hz
+        expected.append(held.mean(axis=0))
+        frames += list(held)
+        if number + 1 < len(holds):
+            frames += list(np.linspace(point, holds[number + 1], 12)[1:-1] + [0.0, 0.0, 8.0])  # lifted between
+    now["s"] = -0.5
+    set_matrix(probe, pose_with_tip_at([0.0, 0.0, 30.0]))  # tracked, in the air above the first point
+    controller.parameters.holdStillMm, controller.parameters.holdStillS = 1.0, 0.5
+    controller.run("set_hold_still_collect", True)
+    collected_at = []
+    controller.add_listener(lambda event, data: collected_at.append(now["s"]) if event == "collected" else None)
+    for index, tip in enumerate(frames):
+        now["s"] = index / 60.0
+        set_matrix(probe, pose_with_tip_at(tip))
+        if index == 20:
+            assert not controller.status().holding  # 1/3 s held: not yet long enough
+        if index == 35:
+            assert controller.status().holding  # 35/60 s: lifting the tip now would collect the point
+    assert len(collected_at) == 2  # the first two holds ended when the tip moved away
+    controller.run("set_hold_still_collect", False)  # the last hold ends when collection is turned off
+    points = mrml_nodes.fiducial_positions(controller.parameters.probePoints)
+    np.testing.assert_allclose(points, expected, atol=1e-9)
+    assert controller.run("set_auto_collect", True) is None and controller.status().auto_collect
+    controller.run("set_hold_still_collect", True)  # one mode at a time
+    assert controller.status().hold_still_collect and not controller.status().auto_collect

@@ -9,9 +9,10 @@ Two ways to get poses into the scene:
   An extension install has no ``ramsicp-tracker-server`` command; this is how Slicer users start the feed.
 
 ``poll()`` (the widget's timer) moves poses into the transform nodes; ``status()`` reports the connection and each
-tool (valid / missing / stale / never seen / disconnected). A scene close drops the connection (its nodes are gone)
-and connects again to the new scene if it was connected. Host, port and tracker choice are kept in the module's
-parameter node, so they are saved with the scene.
+tool (valid / missing / stale / never seen / disconnected). What the connection receives can be recorded to a PLUS
+sequence file (``start_recording``), which PLUS, Slicer's Sequences module and ``--replay`` read back. A scene close
+drops the connection (its nodes are gone) and connects again to the new scene if it was connected. Host, port and
+tracker choice are kept in the module's parameter node, so they are saved with the scene.
 """
 
 import importlib.util
@@ -50,6 +51,7 @@ class BridgeStatus:
     connection: str
     tools: tuple  # (device name, state) for the probe and the reference body
     tracker: str
+    recording: str = ""
     message: str = ""
     message_is_error: bool = False
 
@@ -62,7 +64,7 @@ class BridgeController:
         clock: monotonic clock (s) for the receiver's stale checks.
     """
 
-    ACTIONS = ("connect", "disconnect", "start_tracker", "stop_tracker")
+    ACTIONS = ("connect", "disconnect", "start_tracker", "stop_tracker", "start_recording", "stop_recording")
 
     def __init__(self, scene, clock=time.monotonic):
         self.scene, self.clock = scene, clock
@@ -116,6 +118,23 @@ class BridgeController:
     def poll(self):
         """Apply what has arrived; returns the number of messages applied (0 when not connected)."""
         return 0 if self.receiver is None else self.receiver.poll()
+
+    # -- recording ---------------------------------------------------------------------------------------------
+    def start_recording(self, path):
+        """Record every transform the connection receives to the PLUS sequence file ``path`` (.igs.mha)."""
+        if self.receiver is None:
+            raise ValueError("connect to a tracker first: the recording holds what the connection receives")
+        self.receiver.start_recording(path)
+        self._say(f"recording to {path}")
+
+    def stop_recording(self):
+        """Close the recording; returns its path."""
+        if self.receiver is None or self.receiver.recorder is None:
+            raise ValueError("nothing is being recorded")
+        frames = self.receiver.recorder.frames
+        path = self.receiver.stop_recording()
+        self._say(f"recorded {frames} frames to {path}")
+        return path
 
     # -- a tracker started in this process -----------------------------------------------------------------
     def missing_packages(self, source=None):
@@ -186,7 +205,12 @@ class BridgeController:
         tracker = "no tracker started here"
         if self.server is not None:
             tracker = f"tracker served on 127.0.0.1:{self.server.address[1]}"
-        return BridgeStatus(connection, tools, tracker, *self._message)
+        recording = ""
+        if receiver is not None and receiver.recorder is not None:
+            recording = f"recording: {receiver.recorder.frames} frames to {receiver.recorder.path}"
+        elif receiver is not None and receiver.recording_error:
+            recording = f"recording stopped: {receiver.recording_error}"
+        return BridgeStatus(connection, tools, tracker, recording, *self._message)
 
     # -- scene -------------------------------------------------------------------------------------------------
     def _on_scene_start_close(self, caller=None, event=None):

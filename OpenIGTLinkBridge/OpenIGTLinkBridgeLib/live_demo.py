@@ -1,12 +1,12 @@
-"""``ramsicp demo --live``: simulator -> OpenIGTLink server -> receiver -> probe-point collection -> CR-RAMSICP.
+"""``ramsicp demo --live``: simulator -> OpenIGTLink server -> receiver -> the navigation controller -> CR-RAMSICP.
 
 The simulated Vega plays the demo patient's touches at 60 Hz, one frame per read (``stepped``: the session is
 the same however loaded the machine is); our NDI driver reads it, our server streams each tracker frame once
-from the moment the receiver connects, our receiver writes the transform nodes of a real MRML scene, and
-points are collected the way a surgeon holds the probe still: the hold-still detector of
-``core.hold_still`` (tip within ``HOLD_STILL_MM`` for ``HOLD_STILL_S``) gives each touch as the mean over its
-whole hold, timed by the frames' own time stamps. The collected points are registered exactly as the offline
-demo registers its points. The session can be recorded to a PLUS sequence file (``record``).
+from the moment the receiver connects, and our receiver writes the transform nodes of a real MRML scene. From
+there on it is the surgeon's workflow exactly as the Slicer module runs it: the same ``NavigationController``
+follows ``ProbeToReference``, collects a point each time the tip is held still (``core.hold_still``: the mean
+over the whole hold, timed by the frames' own time stamps) and registers with the module's default method. The
+same points are registered on the exact touches beside it. The session can be recorded to a PLUS sequence file.
 """
 
 import logging
@@ -14,8 +14,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-
-from RAMSICPRegistrationLib.core.hold_still import HoldStillDetector
 
 from .igtl_server import TrackerServer, TrackerSource
 from .live_scenario import PROBE_TIP_MM, demo_simulator
@@ -43,23 +41,6 @@ class LiveResult:
     recording: object = None  # path of the session's PLUS sequence file, when recorded
 
 
-def collect_touches(receiver, detector, tip_mm=PROBE_TIP_MM, probe="ProbeToTracker", reference="ReferenceToTracker"):
-    """Wire ``receiver.on_update`` to feed ``detector`` with the tip in reference coordinates (eq. 2) at each
-    probe frame, timed by the frame's time stamp; returns a function giving the number of probe frames seen."""
-    frames = 0
-
-    def on_update(device, matrix, timestamp_s):
-        nonlocal frames
-        if device != probe or reference not in receiver.matrices:
-            return
-        probe_to_reference = np.linalg.inv(receiver.matrices[reference]) @ matrix
-        detector.add(probe_to_reference[:3, :3] @ tip_mm + probe_to_reference[:3, 3], timestamp_s, frames)
-        frames += 1
-
-    receiver.on_update = on_update
-    return lambda: frames
-
-
 def run_live_demo(
     scene,
     patient,
@@ -76,7 +57,7 @@ def run_live_demo(
     """Play ``trial``'s touches through the whole tracking chain into ``scene`` and register what arrives.
 
     Args:
-        scene: a vtkMRMLScene for the receiver's transform nodes.
+        scene: a vtkMRMLScene for the receiver's transform nodes and the workflow's nodes.
         patient: the VirtualPatient (targets); index: SurfaceIndex of the IPC; trial: TrialData whose ``ppc``
             (reference coordinates) the probe touches and whose markers and targets the registration uses.
         probe_noise_mm: RMS 3-D noise of the tip in the reference frame (split between the two tools).
@@ -85,6 +66,10 @@ def run_live_demo(
             (``replay_server`` replays a recorded session); it is stopped at the end.
     """
     from RAMSICPRegistrationLib.core.registration import register
+    from RAMSICPRegistrationLib.core.transforms import make_transform
+    from RAMSICPRegistrationLib.navigation import mrml_nodes
+    from RAMSICPRegistrationLib.navigation.controller import NavigationController
+    from RAMSICPRegistrationLib.navigation.navigation import set_matrix
 
     from .receiver import TrackerReceiver
 
@@ -109,41 +94,64 @@ def run_live_demo(
     receiver = TrackerReceiver(scene, port=server.address[1])
     if record is not None:
         receiver.start_recording(record)
-    detector = HoldStillDetector(HOLD_STILL_MM, HOLD_STILL_S)
-    frames = collect_touches(receiver, detector)
+    # The workflow as the module runs it: the tracked probe and its calibrated tip, hold-still collection.
+    controller = NavigationController(scene, pose_time=lambda node: receiver.timestamps[receiver.probe_name])
+    parameters = controller.parameters
+    parameters.probeToReference = controller.steps.transform_node(receiver.probe_to_reference_name)
+    parameters.probeTipToProbe = controller.steps.transform_node("ProbeTipToProbe")
+    set_matrix(parameters.probeTipToProbe, make_transform(translation=PROBE_TIP_MM))
+    parameters.holdStillMm, parameters.holdStillS = HOLD_STILL_MM, HOLD_STILL_S
+    touches = []
+    controller.add_listener(lambda event, data: touches.append(data[2]) if event == "collected" else None)
     start = time.monotonic()
     timeout_s = (script.duration_s if script else _replay_seconds(server)) + 2.0
     try:
-        while time.monotonic() - start < timeout_s and len(detector.touches) < len(touched):
-            if receiver.poll() and progress:
-                progress("live collection", len(detector.touches), len(touched))
+        while time.monotonic() - start < timeout_s and len(touches) < len(touched):
+            if receiver.poll():
+                if not controller.status().hold_still_collect:
+                    controller.run("set_hold_still_collect", True)  # as soon as the probe is tracked
+                if progress:
+                    progress("live collection", len(touches), len(touched))
             if server_factory is not None and server.finished.is_set() and not receiver.poll():
                 break  # the replay is over and everything it sent has been read
             time.sleep(0.005)
     finally:
         seconds = time.monotonic() - start
-        detector.finish()
+        controller.run("set_hold_still_collect", False)  # the last hold ends with the session
         recording = receiver.stop_recording()
         server.stop()
         receiver.close()
         if simulator is not None:
             simulator.stop()
-    touches = tuple(detector.touches)
-    collected = np.array([touch.position for touch in touches]).reshape(-1, 3)
+    collected = mrml_nodes.fiducial_positions(parameters.probePoints) if parameters.probePoints else np.zeros((0, 3))
     if len(collected) < 3:
+        controller.close()
         raise RuntimeError(f"only {len(collected)} points were collected live; the tracking chain did not deliver")
     nearest = np.linalg.norm(collected[:, None] - touched[None], axis=2).min(axis=1)
-    options = dict(
-        markers_image=trial.markers_image,
-        markers_patient=trial.markers_patient,
-        targets_image=trial.targets_image,
-        targets_patient=trial.targets_patient,
-        sweep=True,
-        policy="rms-plateau",
+    parameters.ipcModel = mrml_nodes.model_node(scene, index.points)
+    for name, points in (
+        ("markersImage", trial.markers_image),
+        ("markersPatient", trial.markers_patient),
+        ("targetsImage", trial.targets_image),
+        ("targetsPatient", trial.targets_patient),
+    ):
+        setattr(parameters, name, mrml_nodes.fiducial_node(scene, points, name=name))
+    live = controller.register()
+    frames = controller.status().probe_poses
+    controller.close()
+    ramsicp = live.method == "cr-ramsicp"  # the controller sweeps L, with its policy, for CR-RAMSICP only
+    reference = register(
+        index,
+        touched,
+        trial.markers_image,
+        trial.markers_patient,
+        trial.targets_image,
+        trial.targets_patient,
+        method=live.method,
+        sweep=ramsicp,
+        policy=parameters.policy if ramsicp else None,
     )
-    live = register(index, collected, **options)
-    reference = register(index, touched, **options)
-    return LiveResult(collected, touched, nearest, live, reference, frames(), seconds, touches, recording)
+    return LiveResult(collected, touched, nearest, live, reference, frames, seconds, tuple(touches), recording)
 
 
 def replay_server(path, header_version=1):

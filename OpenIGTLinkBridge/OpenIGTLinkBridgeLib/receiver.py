@@ -1,16 +1,17 @@
 """The OpenIGTLink receiver under the OpenIGTLinkBridge widget: transforms into MRML nodes, tool status, eq. 2.
 
 ``poll()`` (called from the widget's timer, or by tests) connects or reconnects, reads what has arrived without
-blocking, writes each TRANSFORM into the linear transform node of the same name (created once, then reused, so
-nodes that SlicerOpenIGTLink already feeds are shared), keeps ``ProbeToReference = inv(ReferenceToTracker) @
-ProbeToTracker`` (paper eq. 2) up to date, and tracks each tool's status: valid, missing (flagged invalid by
-the server), stale (no update for ``stale_after_s``) or disconnected. Malformed messages are logged and skipped;
-a broken stream (bad header) resets the connection.
+blocking, writes each TRANSFORM into the linear transform node of the same name (created once, then reused, so nodes
+that SlicerOpenIGTLink already feeds are shared), keeps ``ProbeToReference = inv(ReferenceToTracker) @
+ProbeToTracker`` (paper eq. 2) up to date, once per tracker frame (both tools with the frame's time stamp, as PLUS
+and our server send them; a tool missing from a frame leaves ProbeToReference as it was), and tracks each tool's
+status: valid, missing (flagged invalid by the server), stale (no update for ``stale_after_s``) or disconnected.
+Malformed messages are logged and skipped; a broken stream (bad header) resets the connection.
 
 ``start_recording(path)`` records every TRANSFORM that arrives, valid or not, to a PLUS sequence file
-(``plus_sequence``) that PLUS, Slicer's Sequences module and ``ramsicp-tracker-server --replay`` read: the
-messages of one tracker frame (same time stamp) form one file frame, in the order they arrived, with their
-status; the file on disk is complete after every frame. ``stop_recording()`` closes it.
+(``plus_sequence``) that PLUS, Slicer's Sequences module and ``ramsicp-tracker-server --replay`` read: the messages
+of one tracker frame (same time stamp) form one file frame, in the order they arrived, with their status; the file
+on disk is complete after every frame. ``stop_recording()`` closes it.
 """
 
 import errno
@@ -61,6 +62,7 @@ class TrackerReceiver:
         self.last_update = {}
         self.valid = {}
         self.matrices = {}
+        self.timestamps = {}  # device -> time stamp (s) of its last valid pose: the tracker frame it belongs to
         self.received = {}
         self.skipped = 0
         self.last_status = None
@@ -266,12 +268,14 @@ class TrackerReceiver:
         if not valid:
             return
         self.matrices[device] = message.content
+        self.timestamps[device] = message.timestamp_s
         _write(self._node(device), message.content)
         if (
             device in (self.reference_name, self.probe_name)
             and self._fresh(self.reference_name)
             and self._fresh(self.probe_name)
-        ):
+            and self.timestamps[self.reference_name] == self.timestamps[self.probe_name]
+        ):  # once per tracker frame, when its second tool arrives: never a probe of one frame on another's reference
             probe_to_reference = np.linalg.inv(self.matrices[self.reference_name]) @ self.matrices[self.probe_name]
             _write(self._node(self.probe_to_reference_name), probe_to_reference)
         if self.on_update is not None:

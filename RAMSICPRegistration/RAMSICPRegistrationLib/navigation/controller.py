@@ -9,7 +9,8 @@ MRML events:
 * ``TransformModifiedEvent`` of the selected ``probeToReference`` and ``referenceToTracker`` nodes (a matrix update
   sends this event, not ``ModifiedEvent``). A new pose is a change of the node's own transform; a change of its
   parent, which the hierarchy reports with the same event, is not. From these the controller keeps each tool's
-  tracking state (valid / stale / waiting), records pivot poses and auto-collects points;
+  tracking state (valid / stale / waiting), records pivot poses, auto-collects points every N mm, or collects a
+  point each time the surgeon holds the tip still (``core.hold_still``: the mean tip over the whole hold);
 * the scene's close events: pivot recording and auto-collect stop, every observer on a node is removed, the
   state is reset, and the controller attaches to the parameter node of the new scene.
 
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.hold_still import HoldStillDetector
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from .navigation import NavigationLogic, matrix_of, points_of
 from .parameters import Parameters, get_parameter_node
@@ -47,6 +49,7 @@ ACTIONS = (
     "collect_point",
     "collect_marker",
     "set_auto_collect",
+    "set_hold_still_collect",
     "register",
     "set_included",
     "robot_calibration",
@@ -85,6 +88,9 @@ class NavigationStatus:
     pivot_recording: bool
     pivot_poses: int
     auto_collect: bool
+    hold_still_collect: bool
+    holding: bool  # the tip has been held still long enough: lifting it now collects the point
+    probe_poses: int  # new ProbeToReference poses seen since the controller started (or the scene was closed)
     probe_points: int
     marker_points: int
     tip_to_surface_mm: float = None
@@ -130,12 +136,17 @@ class NavigationController:
         autosave_directory: every collected point list is written there at once, atomically.
         clock: monotonic clock in seconds (for tracking ages).
         stale_after_s: a watched transform without a new pose for longer than this is stale.
+        pose_time: optional callable(node) -> the time (s) the node's new pose was measured, for hold-still
+            collection; by default the clock when the pose arrives. Our receiver knows each frame's time stamp.
     """
 
-    def __init__(self, scene, autosave_directory=None, clock=time.monotonic, stale_after_s=STALE_AFTER_S):
+    def __init__(
+        self, scene, autosave_directory=None, clock=time.monotonic, stale_after_s=STALE_AFTER_S, pose_time=None
+    ):
         self.scene = scene
         self.steps = NavigationLogic(scene, autosave_directory)
         self.clock, self.stale_after_s = clock, stale_after_s
+        self.pose_time = pose_time
         self.last_result = None
         self._listeners = []
         self._scene_tags = []
@@ -168,8 +179,9 @@ class NavigationController:
             return None
 
     def add_listener(self, callback):
-        """Call ``callback(event, data)`` on every event: 'image', 'pivot', 'collected', 'auto-collect',
-        'registered', 'message' (data: (text, is_error)), 'reset'. Returns the callback, for ``remove_listener``."""
+        """Call ``callback(event, data)`` on every event: 'image', 'pivot', 'collected' (data: (points node, index,
+        the hold-still Touch or None)), 'auto-collect', 'hold-still', 'registered', 'message' (data: (text,
+        is_error)), 'reset'. Returns the callback, for ``remove_listener``."""
         self._listeners.append(callback)
         return callback
 
@@ -193,6 +205,8 @@ class NavigationController:
     def _reset_state(self):
         self._pivot_poses = None
         self._auto_collect = False
+        self._hold_still = None  # the HoldStillDetector while hold-still collection is on
+        self._probe_frames = 0
         self._message = ("", False)
 
     def _attach_parameter_node(self):
@@ -231,6 +245,8 @@ class NavigationController:
             self._say("pivot recording stopped: no ProbeToReference is selected", is_error=True)
         if self._auto_collect and "probeToReference" not in self._pose_tags:
             self.set_auto_collect(False)
+        if self._hold_still is not None and "probeToReference" not in self._pose_tags:
+            self.set_hold_still_collect(False)
 
     def _unwatch(self, name):
         observed, tag = self._pose_tags.pop(name, (None, None))
@@ -239,8 +255,8 @@ class NavigationController:
         self._watches.pop(name, None)
 
     def _on_scene_start_close(self, caller=None, event=None):
-        if self._pivot_poses is not None or self._auto_collect:
-            logger.info("scene closing: pivot recording and auto-collect stopped")
+        if self._pivot_poses is not None or self._auto_collect or self._hold_still is not None:
+            logger.info("scene closing: pivot recording and point collection stopped")
         self._detach_all()
         self._reset_state()
         self.last_result = None
@@ -254,6 +270,7 @@ class NavigationController:
         name = next((name for name, (node, _) in self._pose_tags.items() if node is caller), None)
         if name is None or not self._watches[name].new_pose() or name != "probeToReference":
             return
+        self._probe_frames += 1
         if self._pivot_poses is not None:
             self._pivot_poses.append(matrix_of(caller, "ProbeToReference"))
         if self._auto_collect:
@@ -262,6 +279,18 @@ class NavigationController:
             except (ValueError, TypeError, RuntimeError) as error:  # never raise out of an MRML observer
                 self.set_auto_collect(False)
                 self._say(f"auto-collect stopped: {error}", is_error=True)
+        if self._hold_still is not None:
+            try:
+                parameters = self.parameters
+                tip = self.steps.tip_in_reference(caller, parameters.probeTipToProbe)
+                when = self.clock() if self.pose_time is None else self.pose_time(caller)
+                touch = self._hold_still.add(tip, when, self._probe_frames)
+                if touch is not None:
+                    self._add_touch(touch)
+            except (ValueError, TypeError, RuntimeError) as error:
+                self._hold_still = None
+                self._notify("hold-still", False)
+                self._say(f"hold-still collection stopped: {error}", is_error=True)
 
     def _say(self, message, is_error=False):
         self._message = (message, is_error)
@@ -284,6 +313,9 @@ class NavigationController:
             pivot_recording=self._pivot_poses is not None,
             pivot_poses=0 if self._pivot_poses is None else len(self._pivot_poses),
             auto_collect=self._auto_collect,
+            hold_still_collect=self._hold_still is not None,
+            holding=self._hold_still is not None and self._hold_still.pending() is not None,
+            probe_poses=self._probe_frames,
             probe_points=_count(parameters.probePoints),
             marker_points=_count(parameters.markersPatient),
             tip_to_surface_mm=self._tip_to_surface_mm(parameters),
@@ -316,6 +348,7 @@ class NavigationController:
             "collect_point": collecting,
             "collect_marker": collecting,
             "set_auto_collect": collecting if not self._auto_collect else None,
+            "set_hold_still_collect": collecting if self._hold_still is None else None,
             "register": _first_missing(
                 (parameters.ipcModel, "build the IPC from the CT (step 1) or select an IPC model"),
                 (parameters.markersImage, "find or place the marker centres in the image (step 1)"),
@@ -399,7 +432,7 @@ class NavigationController:
         """``markersPatient`` from the reference body's NDI geometry (its marker centres in its own frame)."""
         node = self.steps.markers_patient_node(tool_id)
         self._say(f"marker centres of NDI {tool_id} added")
-        self._notify("collected", (node, None))
+        self._notify("collected", (node, None, None))
         return node
 
     def collect_point(self):
@@ -429,20 +462,59 @@ class NavigationController:
             node, parameters.probeToReference, parameters.probeTipToProbe, min_distance_mm=min_distance_mm
         )
         if index is not None:
-            self._notify("collected", (node, index))
+            self._notify("collected", (node, index, None))
         return index
 
     def set_auto_collect(self, enabled):
-        """Collect a probe point whenever the tip has moved ``autoCollectDistanceMm`` from the last one."""
+        """Collect a probe point whenever the tip has moved ``autoCollectDistanceMm`` from the last one. Turns
+        hold-still collection off: one collection mode at a time."""
         if enabled:
             self._require("set_auto_collect")
         if bool(enabled) == self._auto_collect:
             return
+        if enabled:
+            self.set_hold_still_collect(False)
         self._auto_collect = bool(enabled)
         if enabled:
             spacing = self.parameters.autoCollectDistanceMm
             self._say(f"auto-collect on: a point every {spacing:g} mm")
         self._notify("auto-collect", self._auto_collect)
+
+    def set_hold_still_collect(self, enabled):
+        """Collect a probe point each time the tip is held still (within ``holdStillMm`` for ``holdStillS``): the
+        point is the mean tip over the whole hold, taken when the tip moves away (or when this is turned off).
+        Turns auto-collect off: one collection mode at a time."""
+        if not enabled:
+            if self._hold_still is not None:
+                touch, self._hold_still = self._hold_still.finish(), None
+                if touch is not None:
+                    self._add_touch(touch)
+                self._notify("hold-still", False)
+            return
+        self._require("set_hold_still_collect")
+        if self._hold_still is not None:
+            return
+        self.set_auto_collect(False)
+        parameters = self.parameters
+        self._hold_still = HoldStillDetector(parameters.holdStillMm, parameters.holdStillS)
+        self._say(
+            f"hold-still collection on: hold the tip still for {parameters.holdStillS:g} s "
+            f"(within {parameters.holdStillMm:g} mm), then lift it"
+        )
+        self._notify("hold-still", True)
+
+    def _add_touch(self, touch):
+        parameters = self.parameters
+        node = parameters.probePoints
+        if node is None:
+            node = self.scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "ProbePoints")
+            parameters.probePoints = node
+        index = self.steps.add_point(node, touch.position)
+        self._say(
+            f"point {index + 1} collected: held {touch.duration_s:.2f} s over {touch.frames} frames, "
+            f"spread {touch.spread_mm:.2f} mm"
+        )
+        self._notify("collected", (node, index, touch))
 
     # -- 4. register ---------------------------------------------------------------------------------------
     def register(self):

@@ -180,7 +180,13 @@ class NavigationLogic:
             last = np.array(points_node.GetNthControlPointPosition(count - 1))
             if np.linalg.norm(tip - last) < min_distance_mm:
                 return None
-        points_node.AddControlPoint(tip.tolist(), f"P{count + 1}")
+        return self.add_point(points_node, tip)
+
+    def add_point(self, points_node, position):
+        """Add ``position`` (3,) in reference coordinates (mm) as the next point ``P<n>`` and save the list at once;
+        returns its index."""
+        count = points_node.GetNumberOfControlPoints()
+        points_node.AddControlPoint(np.asarray(position, dtype=np.float64).tolist(), f"P{count + 1}")
         self._autosave(points_node)
         return count
 

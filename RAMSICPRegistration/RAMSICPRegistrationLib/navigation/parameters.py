@@ -49,6 +49,8 @@ PARAMETERS = (
     Parameter("markersPatient", "node", "marker centres in reference coordinates", FIDUCIALS),
     Parameter("probePoints", "node", "the patient point cloud, PPC (written)", FIDUCIALS),
     Parameter("autoCollectDistanceMm", "float", "auto-collect spacing (mm)", default=5.0, minimum=0.5, maximum=50.0),
+    Parameter("holdStillMm", "float", "hold-still radius (mm)", default=1.0, minimum=0.2, maximum=10.0),
+    Parameter("holdStillS", "float", "hold-still time (s)", default=0.5, minimum=0.05, maximum=5.0),
     # 4. register
     Parameter("method", "choice", "registration method", default=DEFAULT_METHOD, choices=METHODS),
     Parameter("policy", "choice", "how the RAMSICP sweep chooses L", default="rms-plateau", choices=POLICIES),
