@@ -4,7 +4,8 @@ Denoise (Gaussian), threshold (HU, or automatic by Otsu's method above soft tiss
 bone is the largest component, the other bright islands are candidates for the marker spheres. The IPC is the
 bone's iso-surface at the threshold (VTK's flying edges: sub-voxel vertices), in RAS millimetres. Marrow
 cavities are filled slice by slice first, so that the IPC is the outer bone surface a probe can touch; the
-paper's IPC keeps both cortical surfaces, which ``fill_cavities=False`` reproduces.
+paper's IPC keeps both cortical surfaces, which ``fill_cavities=False`` reproduces. Near metal (an implant, a
+pin) the surface is left out: ``metal.py`` says where and why.
 """
 
 import logging
@@ -14,6 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.vtk_arrays import image_data
+from .metal import METAL_HU, find_metal_zone
 
 logger = logging.getLogger(__name__)
 
@@ -23,8 +25,6 @@ DEFAULT_THRESHOLD_HU = 200.0
 DEFAULT_DENOISE_SIGMA_MM = 0.3
 #: The half-maximum bone surface needs voxels that resolve the cortex (mm).
 HALF_MAX_MAX_VOXEL_MM = 1.0
-#: Brighter than any bone: metal (implants), left out when the cortex's brightness is measured.
-METAL_HU = 2500.0
 #: Islands smaller than this (mm^3) are noise, not objects.
 MIN_OBJECT_MM3 = 50.0
 
@@ -51,12 +51,14 @@ class BoneSegmentation:
     def bone_mask(self):
         return self.labels == self.bone_label
 
-    def labelmap(self, sphere_labels=()):
-        """(I, J, K) uint8 labelmap: 1 for the bone, 2, 3, ... for the marker spheres given by component label."""
+    def labelmap(self, sphere_labels=(), values=None):
+        """(I, J, K) uint8 labelmap: 1 for the bone, and for the marker spheres given by their labels in
+        ``labels`` the ``values`` given (2, 3, ... in the order given by default)."""
         labelmap = np.zeros(self.labels.shape, dtype=np.uint8)
         labelmap[self.bone_mask] = 1
-        for number, label in enumerate(sphere_labels):
-            labelmap[self.labels == label] = number + 2
+        values = range(2, 2 + len(sphere_labels)) if values is None else values
+        for label, value in zip(sphere_labels, values):
+            labelmap[self.labels == label] = value
         return labelmap
 
 
@@ -124,10 +126,15 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
 
 @dataclass(frozen=True)
 class BoneSurface:
-    """The IPC: ``points`` (M, 3) RAS mm, and the iso-surface ``triangles`` (K, 3) over them."""
+    """The IPC: ``points`` (M, 3) RAS mm, and the iso-surface ``triangles`` (K, 3) over them.
+
+    ``metal`` is the MetalZone of the CT; ``left_out`` the number of surface points dropped in it.
+    """
 
     points: np.ndarray
     triangles: np.ndarray
+    metal: object = None
+    left_out: int = 0
 
 
 def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
@@ -163,7 +170,27 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
     vertices_ijk, triangles = iso_surface(image, level)
     if len(vertices_ijk) == 0:
         raise ValueError("the bone has no surface at the threshold; check the threshold")
-    return BoneSurface(points=volume.ijk_to_ras_points(vertices_ijk + low), triangles=triangles)
+    metal = find_metal_zone(volume, segmentation.smoothed)
+    spoilt = metal.contains_ijk(vertices_ijk + low)
+    if spoilt.any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
+        logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))
+    if len(vertices_ijk) == 0:
+        raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
+    return BoneSurface(
+        points=volume.ijk_to_ras_points(vertices_ijk + low),
+        triangles=triangles,
+        metal=metal,
+        left_out=int(spoilt.sum()),
+    )
+
+
+def _without_vertices(vertices, triangles, drop):
+    """A mesh without the vertices flagged in ``drop`` (M,) and the triangles that use them, re-indexed."""
+    keep = ~drop
+    new_index = np.cumsum(keep) - 1
+    kept_triangles = triangles[keep[triangles].all(axis=1)]
+    return vertices[keep], new_index[kept_triangles]
 
 
 def _surface_level(image, mask, threshold, level, spacing):

@@ -1,18 +1,23 @@
 """CT phantoms: a C-arm-CT-like volume of a real bone with its reference body, and the ground truth.
 
 The paper's C-arm CT has 0.5 mm pixels and 0.625 mm slices. The phantom renders, with partial volume at every
-boundary (signed distances, not voxel labels):
+boundary (signed distances, not voxel labels; see ``ct_painting``):
 
 * the bone from a real mesh: cortical shell (``CORTEX_THICKNESS_MM``), fatty marrow in the shaft and cancellous
   bone in the epiphysis (``EPIPHYSIS_MM`` below the top);
 * soft tissue around the bone, air elsewhere;
-* the reference body: 4 marker spheres (11.5 mm) at the NDI tool geometry, on plastic posts and a plastic frame
-  joined to the bone by a carbon-fibre bracket. Plastic and carbon stay below the bone threshold, as in CT of
-  real passive tools; the spheres' reflective coating makes them bright;
+* the reference body (``ReferenceBodyModel``): 4 marker spheres (11.5 mm) at the NDI tool geometry on posts, the
+  posts joined by a frame, the frame held by a carbon-fibre bracket that rests on the bone. Posts and frame are
+  plastic (below the bone threshold) by default, or dense polymer or aluminium (above it: then spheres, posts and
+  frame are one bright object, as on many real tool bodies); the spheres' reflective coating makes them bright;
+* optionally a steel pin through the shaft where the bracket is clamped (``fixation_pin``), with the streaks of
+  ``ct_painting.add_metal_streaks``;
 
-then blurs with the scanner's point spread and adds Gaussian noise. Every value is a documented constant below;
-the phantom is deterministic under its seed. Optionally one sphere is partial (a cap missing) and one deformed
-(stretched), like the defects of the paper's Fig. 4a.
+then blurs with the scanner's point spread and adds Gaussian noise (25 HU; a low-dose scan is 40-60 HU). The
+scanner grid is LPS-aligned unless a ``direction`` is given. Optionally a sphere is partial (a cap missing) or
+deformed (stretched), like the defects of the paper's Fig. 4a, and the field of view can cut one sphere. Every
+value is a documented constant; the phantom is deterministic under its seed. Markers are numbered 1 to 4 in the
+tool's order, everywhere.
 """
 
 import logging
@@ -22,54 +27,80 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from ..core.transforms import apply_transform
 from ..image.volume_io import CTVolume
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from ..io.vtk_arrays import poly_data
+from .ct_painting import (
+    LPS_DIRECTION,
+    MATERIALS_HU,
+    PSF_SIGMA_MM,
+    MetalRod,
+    ReferenceBodyModel,
+    add_metal_streaks,
+    check_defects,
+    fraction_inside,
+    paint_capsule,
+    paint_metal,
+    paint_reference_body,
+    reference_body_feet,
+    scan,
+    scanner_grid,
+    sphere_extremes,
+)
 from .virtual_patient import sample_surface
 
 logger = logging.getLogger(__name__)
 
 PAPER_SPACING_MM = (0.5, 0.5, 0.625)
-HU = {
-    "air": -1000.0,
-    "soft_tissue": 40.0,
-    "marrow": -40.0,
-    "cancellous": 300.0,
-    "cortex": 1400.0,
-    "marker": 700.0,
-    "plastic": 110.0,
-    "carbon": 160.0,
-}
+#: Materials (HU); ``ct_painting.MATERIALS_HU`` under its old name.
+HU = MATERIALS_HU
 CORTEX_THICKNESS_MM = 2.5
 EPIPHYSIS_MM = 60.0
 SOFT_TISSUE_MM = 15.0
-PSF_SIGMA_MM = 0.35
 NOISE_HU = 25.0
-POST_LENGTH_MM = 12.0
-POST_RADIUS_MM = 1.5
-FRAME_RADIUS_MM = 3.0
 BRACKET_RADIUS_MM = 4.0
+#: The fixation pin: a 5 mm steel pin from inside the bracket through the shaft.
+PIN_RADIUS_MM = 2.5
+PIN_OUTSIDE_MM = 15.0
+PIN_INSIDE_MM = 30.0
+#: Where the field of view cuts a sphere: this far beyond its centre (mm), so about a third of it is missing.
+CUT_BEYOND_CENTRE_MM = 1.5
+#: Every file ``write_phantom`` writes, with its frame.
+FILE_FRAMES = {
+    "ct": "LPS (the NRRD header's 'space'; Slicer converts it to RAS on loading)",
+    "truth": "RAS (Slicer's world frame, as every point this program reports), mm",
+    "bone_surface": "LPS (the SPACE=LPS tag Slicer writes in model files; read back to RAS)",
+    "marker_centres": "LPS in the file (coordinateSystem: LPS, as Slicer writes markups); RAS once loaded",
+}
 
 
 @dataclass(frozen=True)
 class PhantomTruth:
-    """Ground truth of a CT phantom, all in the image's RAS frame (mm)."""
+    """Ground truth of a CT phantom, all in the image's RAS frame (mm).
+
+    ``marker_defects`` maps a marker number (1 to 4, the tool's order) to 'partial' or 'deformed';
+    ``cut_marker`` is the number of the sphere the field of view cuts, or None.
+    """
 
     reference_to_image: np.ndarray
     marker_centres: np.ndarray  # (4, 3) true sphere centres
     marker_radius_mm: float
-    marker_defects: dict  # marker number -> 'partial' or 'deformed'
+    marker_defects: dict
     bone_vertices: np.ndarray
     bone_triangles: np.ndarray
+    cut_marker: int = None
     settings: dict = field(default_factory=dict)
 
     def to_dict(self):
         return {
+            "coordinate_system": "RAS",
+            "units": "mm",
             "reference_to_image": self.reference_to_image.tolist(),
             "marker_centres": self.marker_centres.tolist(),
+            "marker_numbers": list(range(1, len(self.marker_centres) + 1)),
             "marker_radius_mm": self.marker_radius_mm,
-            "marker_defects": {str(k): v for k, v in self.marker_defects.items()},
+            "marker_defects": {str(k): v for k, v in sorted(self.marker_defects.items())},
+            "cut_marker": self.cut_marker,
             **self.settings,
         }
 
@@ -84,6 +115,10 @@ def make_ct_phantom(
     defects=None,
     margin_mm=12.0,
     below_cut_mm=110.0,
+    body=None,
+    metal=None,
+    direction=LPS_DIRECTION,
+    cut_marker=None,
 ):
     """Render a CT phantom of a virtual patient.
 
@@ -92,40 +127,47 @@ def make_ct_phantom(
         vertices, triangles: the bone mesh in image coordinates (RAS mm).
         seed: fixes the noise.
         spacing: voxel size (mm) along i, j, k; the paper's is 0.5 x 0.5 x 0.625.
-        noise_hu: standard deviation of the image noise (HU).
-        defects: optional {marker number (0-3): 'partial' | 'deformed'}.
-        margin_mm: field of view beyond the markers and the bone region.
-        below_cut_mm: how far below the osteotomy cut the field of view reaches.
+        noise_hu: standard deviation of the image noise (HU); 40-60 for a low-dose scan.
+        defects: optional {marker number (1 to 4): 'partial' | 'deformed'}.
+        margin_mm: field of view beyond the markers and the bone region, on every side.
+        below_cut_mm: how far below the osteotomy cut the bone region reaches.
+        body: ReferenceBodyModel (plastic posts and frame by default).
+        metal: None, a MetalRod, or 'pin' for ``fixation_pin(patient)``.
+        direction: (3, 3) RAS directions of the grid's i, j, k axes (columns); LPS-aligned by default.
+        cut_marker: optional marker number (1 to 4) whose sphere the field of view cuts.
 
     Returns:
-        (CTVolume, PhantomTruth). The volume's i, j, k axes point L, P, S (an LPS-aligned scanner grid).
+        (CTVolume, PhantomTruth).
     """
-    defects = dict(defects or {})
+    body = body or ReferenceBodyModel()
+    count = len(patient.markers_reference)
+    defects = check_defects(defects, count)
     spacing = np.asarray(spacing, dtype=np.float64)
     markers = patient.markers_image
     radius = MARKER_DIAMETER_MM / 2.0
+    if metal == "pin":
+        metal = fixation_pin(patient, body)
     top = vertices[:, 2].max()
-    bone_region = vertices[(vertices[:, 2] >= patient.cut_height_mm - below_cut_mm)]
-    low = np.minimum(bone_region.min(axis=0), markers.min(axis=0) - radius) - margin_mm
-    high = np.maximum(bone_region.max(axis=0), markers.max(axis=0) + radius) + margin_mm
-    low[2] = patient.cut_height_mm - below_cut_mm
-    high[2] = top + margin_mm
-    # LPS-aligned grid: i runs to the left (-x RAS), j to posterior (-y), k superior.
-    direction = np.diag([-1.0, -1.0, 1.0])
-    shape = np.ceil((high - low) / spacing).astype(int) + 1
-    origin = np.array([high[0], high[1], low[2]])
-    ijk_to_ras = np.eye(4)
-    ijk_to_ras[:3, :3] = direction * spacing
-    ijk_to_ras[:3, 3] = origin
-    volume = CTVolume(voxels=np.full(tuple(shape), HU["air"], dtype=np.float32), ijk_to_ras=ijk_to_ras)
-    logger.info("CT phantom grid %s voxels of %s mm", tuple(shape), spacing.tolist())
+    bone_region = vertices[vertices[:, 2] >= patient.cut_height_mm - below_cut_mm]
+    volume = scanner_grid(
+        np.vstack((bone_region, sphere_extremes(markers, radius, direction))), spacing, direction, margin_mm
+    )
+    if cut_marker is not None:
+        volume = cut_through_sphere(volume, markers, radius, cut_marker)
+    logger.info("CT phantom grid %s voxels of %s mm", volume.voxels.shape, spacing.tolist())
 
     _paint_bone(volume, vertices, triangles, top, np.random.default_rng(seed))
-    _paint_reference_body(volume, patient, radius, defects)
-    sigma_voxels = PSF_SIGMA_MM / spacing
-    blurred = ndimage.gaussian_filter(volume.voxels, sigma_voxels, truncate=3.0)
-    noise = np.random.default_rng(seed + 1).normal(scale=noise_hu, size=blurred.shape).astype(np.float32)
-    voxels = np.round(blurred + noise).astype(np.int16)
+    feet, hub = reference_body_feet(patient.reference_to_image, patient.markers_reference, body)
+    bone_anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
+    towards_hub = (hub - bone_anchor) / np.linalg.norm(hub - bone_anchor)
+    # The bracket's clamp rests on the bone surface; it does not cut through the cortex.
+    paint_capsule(volume, hub, bone_anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub, BRACKET_RADIUS_MM, HU["carbon"])
+    paint_reference_body(volume, patient.reference_to_image, patient.markers_reference, body, radius, defects)
+    if metal is not None:
+        box, fraction = paint_metal(volume, metal)
+        if box is not None:
+            add_metal_streaks(volume, box, fraction, towards=metal.streak_towards)
+    scanned = scan(volume, noise_hu, seed + 1)
     truth = PhantomTruth(
         reference_to_image=patient.reference_to_image.copy(),
         marker_centres=markers.copy(),
@@ -133,44 +175,146 @@ def make_ct_phantom(
         marker_defects=defects,
         bone_vertices=vertices,
         bone_triangles=triangles,
+        cut_marker=cut_marker,
         settings={
             "spacing_mm": spacing.tolist(),
-            "shape": shape.tolist(),
+            "shape": list(scanned.voxels.shape),
+            "direction": np.asarray(direction, dtype=float).tolist(),
             "noise_hu": noise_hu,
             "psf_sigma_mm": PSF_SIGMA_MM,
-            "hu": HU,
+            "hu": dict(HU),
             "cortex_thickness_mm": CORTEX_THICKNESS_MM,
+            "reference_body": body.to_dict(),
+            "metal": None if metal is None else metal.to_dict(),
             "seed": seed,
         },
     )
-    return CTVolume(voxels=voxels, ijk_to_ras=ijk_to_ras), truth
+    return scanned, truth
+
+
+def fixation_pin(patient, body=None):
+    """The steel pin (MetalRod) that holds the reference body's bracket: from inside the bracket through the shaft."""
+    _, hub = reference_body_feet(patient.reference_to_image, patient.markers_reference, body or ReferenceBodyModel())
+    anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
+    towards_hub = (hub - anchor) / np.linalg.norm(hub - anchor)
+    return MetalRod(
+        start=tuple(anchor + PIN_OUTSIDE_MM * towards_hub),
+        end=tuple(anchor - PIN_INSIDE_MM * towards_hub),
+        radius_mm=PIN_RADIUS_MM,
+    )
+
+
+def cut_through_sphere(volume, centres, radius, number):
+    """Crop a grid so that one of its faces cuts sphere ``number`` (1-based) ``CUT_BEYOND_CENTRE_MM`` beyond its
+    centre: the face nearest that sphere among those that leave the other spheres wholly inside.
+
+    Raises:
+        ValueError: a bad number, or no face cuts that sphere alone.
+    """
+    if not 1 <= number <= len(centres):
+        raise ValueError(f"cut marker {number}: markers are numbered 1 to {len(centres)}")
+    last_index = np.array(volume.voxels.shape) - 1
+    ijk = volume.ras_to_ijk_points(centres)
+    spacing = volume.spacing
+    target, others = ijk[number - 1], np.delete(ijk, number - 1, axis=0)
+    faces = [(axis, side) for axis in range(3) for side in (0, 1)]
+    gaps = [(target[a] if side == 0 else last_index[a] - target[a]) * spacing[a] for a, side in faces]
+    for face in np.argsort(gaps):
+        axis, side = faces[face]
+        step, margin = CUT_BEYOND_CENTRE_MM / spacing[axis], (radius + 1.0) / spacing[axis]
+        index, ijk_to_ras = [slice(None)] * 3, volume.ijk_to_ras.copy()
+        if side == 0:
+            first = int(np.ceil(target[axis] - step))
+            if (others[:, axis] - margin < first).any():
+                continue
+            index[axis] = slice(first, None)
+            ijk_to_ras[:3, 3] += ijk_to_ras[:3, axis] * first
+        else:
+            last = int(np.floor(target[axis] + step))
+            if (others[:, axis] + margin > last).any():
+                continue
+            index[axis] = slice(0, last + 1)
+        return CTVolume(voxels=np.ascontiguousarray(volume.voxels[tuple(index)]), ijk_to_ras=ijk_to_ras)
+    raise ValueError(f"no edge of the field of view can cut marker {number} without cutting another sphere")
 
 
 def write_phantom(directory, volume, truth):
-    """Write a phantom to ``directory``: ``ct.nrrd`` (LPS, int16), ``truth.json`` and ``bone_surface.vtp``.
+    """Write a phantom to ``directory`` and return the paths written, by name.
 
-    ``truth.json`` holds the true marker centres and ``ReferenceToImage`` (RAS mm), the marker radius and
-    defects, the rendering settings, and the name of the bone-surface file.
-    Returns the paths written, by name.
+    * ``ct.nrrd``: the CT, int16 HU, in LPS (the NRRD header says so);
+    * ``truth.json``: the true marker centres and ``ReferenceToImage`` in **RAS** mm (stated in the file as
+      ``coordinate_system``), the marker radius, defects and the cut sphere, the rendering settings, and each
+      file's frame (``files``);
+    * ``bone_surface.vtp``: the true bone surface **cut to the CT's field of view** (the box of its voxel
+      centres), tagged LPS as Slicer writes models;
+    * ``marker_centres.mrk.json``: the true marker centres as Slicer markups (M1 to M4, LPS in the file).
     """
     import json
     from pathlib import Path
 
     from ..image.volume_io import save_nrrd
+    from ..io.point_files import write_points
     from ..io.surface_files import write_surface
 
     directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ValueError(f"{directory} is a file; give a folder for the phantom's files")
     directory.mkdir(parents=True, exist_ok=True)
     paths = {
         "ct": directory / "ct.nrrd",
         "truth": directory / "truth.json",
         "bone_surface": directory / "bone_surface.vtp",
+        "marker_centres": directory / "marker_centres.mrk.json",
     }
     save_nrrd(paths["ct"], volume)
-    write_surface(paths["bone_surface"], truth.bone_vertices, truth.bone_triangles)
-    document = {**truth.to_dict(), "bone_surface_file": paths["bone_surface"].name, "ct_file": paths["ct"].name}
+    surface_vertices, surface_triangles = clip_to_field_of_view(truth.bone_vertices, truth.bone_triangles, volume)
+    write_surface(paths["bone_surface"], surface_vertices, surface_triangles)
+    write_points(
+        paths["marker_centres"], truth.marker_centres, labels=[f"M{n + 1}" for n in range(len(truth.marker_centres))]
+    )
+    files = {name: {"file": path.name, "frame": FILE_FRAMES[name]} for name, path in paths.items()}
+    files["bone_surface"]["extent"] = "cut to the CT's field of view (the box of its voxel centres)"
+    document = {**truth.to_dict(), "files": files}
     paths["truth"].write_text(json.dumps(document, indent=2), encoding="utf-8")
     return paths
+
+
+def clip_to_field_of_view(vertices, triangles, volume):
+    """The part of a surface (RAS vertices (V, 3), triangles (K, 3)) inside a CT's box of voxel centres.
+
+    Triangles crossing the box's faces are cut exactly (VTK), so the surface ends at the field of view.
+    """
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkPlanes
+    from vtkmodules.vtkFiltersCore import vtkClipPolyData, vtkTriangleFilter
+
+    shape = np.array(volume.voxels.shape) - 1
+    axes = volume.ijk_to_ras[:3, :3]
+    origin, far = volume.ijk_to_ras[:3, 3], volume.ijk_to_ras_points(shape[None])[0]
+    points, normals = [], []
+    for axis in range(3):
+        outward = axes[:, axis] / np.linalg.norm(axes[:, axis])
+        points += [origin, far]
+        normals += [-outward, outward]
+    planes = vtkPlanes()
+    plane_points = vtkPoints()
+    plane_points.SetData(numpy_to_vtk(np.array(points, dtype=np.float64), deep=True))
+    planes.SetPoints(plane_points)
+    planes.SetNormals(numpy_to_vtk(np.array(normals, dtype=np.float64), deep=True))
+    clip = vtkClipPolyData()
+    clip.SetInputData(poly_data(vertices, triangles))
+    clip.SetClipFunction(planes)
+    clip.InsideOutOn()  # keep where every plane's function is negative: inside the box
+    triangulate = vtkTriangleFilter()
+    triangulate.SetInputConnection(clip.GetOutputPort())
+    triangulate.Update()
+    output = triangulate.GetOutput()
+    if output.GetNumberOfPoints() == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    clipped = vtk_to_numpy(output.GetPoints().GetData()).astype(np.float64)
+    cells = vtk_to_numpy(output.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
+    return clipped, cells
 
 
 def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000):
@@ -182,11 +326,6 @@ def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000)
     surface, normals = sample_surface(vertices, triangles, samples, rng)
     _, nearest = cKDTree(surface).query(points)
     return np.einsum("ij,ij->i", points - surface[nearest], normals[nearest])
-
-
-def _fraction_inside(signed_distance_mm, ramp_mm):
-    """Partial-volume fraction from a signed distance (negative inside): a linear ramp one voxel wide."""
-    return np.clip(0.5 - signed_distance_mm / ramp_mm, 0.0, 1.0)
 
 
 def _paint_bone(volume, vertices, triangles, top, rng):
@@ -227,86 +366,18 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     band = np.abs(signed) < 2.0 * spacing.max()
     signed[band] = signed_distance_to_mesh(volume.ijk_to_ras_points(np.argwhere(band) + low), vertices, triangles, rng)
 
-    box_ras_z = volume.ijk_to_ras[2, 3] + (np.arange(low[2], high[2] + 1) * volume.ijk_to_ras[2, 2])
-    interior = np.where(box_ras_z[None, None, :] > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])
+    # RAS height of every voxel of the box (the grid may be turned): cancellous bone in the epiphysis.
+    row = volume.ijk_to_ras[2]
+    ras_z = (
+        row[3]
+        + row[0] * np.arange(low[0], high[0] + 1)[:, None, None]
+        + row[1] * np.arange(low[1], high[1] + 1)[None, :, None]
+        + row[2] * np.arange(low[2], high[2] + 1)[None, None, :]
+    )
+    interior = np.where(ras_z > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])
     cortex = np.clip((CORTEX_THICKNESS_MM + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
     bone_hu = cortex * HU["cortex"] + (1.0 - cortex) * interior
-    tissue = _fraction_inside(signed - SOFT_TISSUE_MM, ramp)
+    tissue = fraction_inside(signed - SOFT_TISSUE_MM, ramp)
     outside_hu = tissue * HU["soft_tissue"] + (1.0 - tissue) * HU["air"]
-    bone = _fraction_inside(signed, ramp)
+    bone = fraction_inside(signed, ramp)
     volume.voxels[box] = (bone * bone_hu + (1.0 - bone) * outside_hu).astype(np.float32)
-
-
-def _paint_reference_body(volume, patient, radius, defects):
-    """Bracket, frame, posts and marker spheres, painted in that order (later ones on top)."""
-    pose = patient.reference_to_image
-    markers_tool = patient.markers_reference
-    feet_tool = markers_tool - np.array([POST_LENGTH_MM, 0.0, 0.0])  # posts stand on +x, the marker normal
-    hub_tool = feet_tool.mean(axis=0)
-    feet, hub = apply_transform(pose, feet_tool), apply_transform(pose, hub_tool[None])[0]
-    bone_anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
-    towards_hub = (hub - bone_anchor) / np.linalg.norm(hub - bone_anchor)
-    # The bracket's clamp rests on the bone surface; it does not cut through the cortex.
-    _paint_capsule(volume, hub, bone_anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub, BRACKET_RADIUS_MM, HU["carbon"])
-    for foot in feet:
-        _paint_capsule(volume, foot, hub, FRAME_RADIUS_MM, HU["plastic"])
-    for number, (centre, foot) in enumerate(zip(patient.markers_image, feet)):
-        _paint_capsule(volume, centre, foot, POST_RADIUS_MM, HU["plastic"])
-        _paint_sphere(volume, centre, radius, defects.get(number), outward=centre - foot)
-
-
-def _box_around(volume, low_ras, high_ras):
-    corners = np.array(
-        [
-            [x, y, z]
-            for x in (low_ras[0], high_ras[0])
-            for y in (low_ras[1], high_ras[1])
-            for z in (low_ras[2], high_ras[2])
-        ]
-    )
-    ijk = volume.ras_to_ijk_points(corners)
-    low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
-    high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(volume.voxels.shape) - 1)
-    if (high < low).any():
-        return None, None  # the object lies outside the field of view
-    box = tuple(slice(a, b + 1) for a, b in zip(low, high))
-    grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(low, high)], indexing="ij"), axis=-1)
-    return box, volume.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape)
-
-
-def _blend(volume, box, signed_distance, hu):
-    fraction = _fraction_inside(signed_distance, float(np.mean(volume.spacing))).astype(np.float32)
-    volume.voxels[box] = fraction * hu + (1.0 - fraction) * volume.voxels[box]
-
-
-def _paint_capsule(volume, start, end, radius, hu):
-    pad = radius + 2.0
-    box, ras = _box_around(volume, np.minimum(start, end) - pad, np.maximum(start, end) + pad)
-    if box is None:
-        return
-    axis = end - start
-    t = np.clip(((ras - start) @ axis) / (axis @ axis), 0.0, 1.0)
-    signed = np.linalg.norm(ras - (start + t[..., None] * axis), axis=-1) - radius
-    _blend(volume, box, signed, hu)
-
-
-def _paint_sphere(volume, centre, radius, defect, outward):
-    pad = 1.3 * radius + 2.0
-    box, ras = _box_around(volume, centre - pad, centre + pad)
-    if box is None:
-        return
-    offset = ras - centre
-    if defect == "deformed":
-        # Stretched by 20 % across the marker normal: the blurred, bloated look of Fig. 4a.
-        across = np.cross(outward, (0.0, 0.0, 1.0))
-        across /= np.linalg.norm(across)
-        along = offset @ across
-        squeezed = offset + (along / 1.2 - along)[..., None] * across
-        signed = np.linalg.norm(squeezed, axis=-1) - radius
-    else:
-        signed = np.linalg.norm(offset, axis=-1) - radius
-    if defect == "partial":
-        # A cap 4 mm deep is missing on the side facing away from the post (a defect of the reconstruction).
-        unit = outward / np.linalg.norm(outward)
-        signed = np.maximum(signed, offset @ unit - (radius - 4.0))
-    _blend(volume, box, signed, HU["marker"])
