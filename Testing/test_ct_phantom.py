@@ -5,6 +5,7 @@ from pathlib import Path
 
 import nibabel
 import numpy as np
+import pytest
 
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, segment_bone
@@ -47,8 +48,43 @@ def test_phantom_writes_nrrd_truth_and_surface(tibia_phantom, tmp_path):
     np.testing.assert_allclose(document["marker_centres"], truth.marker_centres)
     np.testing.assert_allclose(document["reference_to_image"], truth.reference_to_image)
     assert document["spacing_mm"] == list(PAPER_SPACING_MM)
-    surface = read_surface_points(tmp_path / document["bone_surface_file"])
-    np.testing.assert_allclose(surface, truth.bone_vertices, atol=1e-9)
+    # Every file states its frame (issue 14, item 10): truth.json is RAS and says so, the others are LPS files.
+    assert document["coordinate_system"] == "RAS" and document["units"] == "mm"
+    files = document["files"]
+    assert files["truth"]["frame"].startswith("RAS") and files["ct"]["frame"].startswith("LPS")
+    assert files["bone_surface"]["frame"].startswith("LPS") and "field of view" in files["bone_surface"]["extent"]
+    assert '"coordinateSystem": "LPS"' in paths["marker_centres"].read_text()
+    np.testing.assert_allclose(read_points(paths["marker_centres"]).points, truth.marker_centres, atol=1e-9)
+    # The surface is the true one cut to the CT's box of voxel centres: nothing outside it, and it reaches the
+    # box's lower face (the bone runs on below the field of view).
+    surface = read_surface_points(tmp_path / files["bone_surface"]["file"])
+    ijk = volume.ras_to_ijk_points(surface)
+    last = np.array(volume.voxels.shape) - 1
+    assert (ijk > -1e-6).all() and (ijk < last + 1e-6).all()
+    assert ijk[:, 2].min() < 1e-6 and truth.bone_vertices[:, 2].min() < volume.ijk_to_ras[2, 3] - 50.0
+    on_mesh = signed_distance_to_mesh(surface, truth.bone_vertices, truth.bone_triangles, np.random.default_rng(2))
+    assert np.abs(on_mesh).max() < 0.05
+
+
+def test_phantom_command_numbers_markers_from_1_and_states_frames(tmp_path, capsys):
+    """``phantom --partial 1`` damages the tool's first marker, as ``ipc`` then names it (issue 14, item 9)."""
+    out = tmp_path / "phantom"
+    assert main(["phantom", "--out", str(out), "--partial", "1", "--deformed", "4", "--noise", "10"]) == 0
+    printed = capsys.readouterr().out
+    for name in ("ct.nrrd", "truth.json", "bone_surface.vtp", "marker_centres.mrk.json"):
+        line = next(line for line in printed.splitlines() if line.rstrip().split("  [")[0].endswith(name))
+        assert "[LPS" in line or "[RAS" in line
+    document = json.loads((out / "truth.json").read_text())
+    assert document["marker_defects"] == {"1": "partial", "4": "deformed"}
+    assert main(["ipc", str(out / "ct.nrrd"), "--out", str(out / "ipc.vtp"), "--markers", str(out / "m.fcsv")]) == 3
+    captured = capsys.readouterr()
+    assert "marker 1" in captured.out and "partial" in captured.out.split("marker 1", 1)[1].splitlines()[0]
+    assert "deformed" in captured.out.split("marker 4", 1)[1].splitlines()[0]
+    assert "only 2 of 4 marker centres are usable (not usable: marker 1, 4)" in captured.err
+    assert read_points(out / "m.fcsv").labels == ("M1 partial", "M2 ok", "M3 ok", "M4 deformed")
+    with pytest.raises(SystemExit) as stopped:  # markers are numbered 1 to 4
+        main(["phantom", "--out", str(out), "--partial", "0"])
+    assert stopped.value.code == 2 and "invalid choice: 0" in capsys.readouterr().err
 
 
 def test_phantom_is_deterministic_under_its_seed(tibia_patient):

@@ -20,13 +20,17 @@ from .experiments.experiments import EXPERIMENTS, run_experiments
 from .image.ct_pipeline import process_ct
 from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
 from .image.volume_io import CTVolume, load_volume, save_nrrd
+from .io.marker_files import flagged_message, pair_markers, read_markers, write_markers
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from .io.point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .io.surface_files import read_surface_points, write_surface
-from .simulation.ct_phantom import make_ct_phantom, write_phantom
+from .simulation.ct_painting import BODY_MATERIALS, ReferenceBodyModel, rotated_direction
+from .simulation.ct_phantom import FILE_FRAMES, make_ct_phantom, write_phantom
 from .simulation.package_data import BONES, shipped_patient
 
 EXIT_BAD_INPUT = 2
+#: ``ramsicp ipc --markers``: every file was written, but fewer marker centres are usable than the tool has.
+EXIT_TOO_FEW_MARKERS = 3
 
 
 def main(argv=None):
@@ -62,8 +66,18 @@ def _parser():
     reg.add_argument(
         "--ppc", required=True, help="probe points in reference coordinates (.mrk.json .fcsv .csv .txt .npy)"
     )
-    reg.add_argument("--markers-image", required=True, help="marker-sphere centres in the image")
+    reg.add_argument(
+        "--markers-image",
+        required=True,
+        help="marker-sphere centres in the image; labels 'M<n> <status>' (as ramsicp ipc writes them) pair "
+        "marker n with the n-th patient marker and say whether its sphere was ok, partial or deformed",
+    )
     reg.add_argument("--markers-patient", required=True, help="the same centres in reference coordinates")
+    reg.add_argument(
+        "--accept-flagged-markers",
+        action="store_true",
+        help="use marker centres that ramsicp ipc flagged partial or deformed (refused otherwise)",
+    )
     reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
     reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
     reg.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
@@ -170,8 +184,21 @@ def _parser():
         help="keep the inner (marrow) surface of the cortex in the IPC, as the paper's IPC does",
     )
     ipc.add_argument("--out", type=Path, required=True, help="IPC file: .vtp .vtk .ply .stl .obj or a point file")
-    ipc.add_argument("--markers", type=Path, help="write the marker-sphere centres (.mrk.json, .fcsv, ...)")
-    ipc.add_argument("--labelmap", type=Path, help="write the segmentation as a .nrrd labelmap (1 bone, 2-5 spheres)")
+    ipc.add_argument(
+        "--markers",
+        type=Path,
+        help="write the marker-sphere centres (.mrk.json, .fcsv, ...), labelled 'M<n> <status>' (n: the tool's "
+        f"marker number; status ok, partial or deformed); exit code {EXIT_TOO_FEW_MARKERS} when fewer than the "
+        "tool's markers are usable (the file is written all the same)",
+    )
+    ipc.add_argument(
+        "--accept-fewer",
+        action="store_true",
+        help="exit 0 even when fewer marker centres than the tool's markers are usable",
+    )
+    ipc.add_argument(
+        "--labelmap", type=Path, help="write the segmentation as a .nrrd labelmap (1 bone, 1 + n marker n's sphere)"
+    )
     ipc.add_argument(
         "--tool",
         default=DEFAULT_REFERENCE_TOOL,
@@ -180,15 +207,48 @@ def _parser():
     ipc.add_argument("--json", type=Path, help="write counts, thresholds, spheres and timings as JSON")
     ipc.set_defaults(run=_run_ipc)
 
-    phantom = commands.add_parser("phantom", help="write a CT phantom (NRRD) of a shipped bone with its ground truth")
-    phantom.add_argument("--out", type=Path, required=True, help="folder for ct.nrrd, truth.json, bone_surface.vtp")
+    phantom = commands.add_parser(
+        "phantom",
+        help="write a CT phantom (NRRD) of a shipped bone with its ground truth",
+        description="Writes ct.nrrd (LPS), truth.json (RAS, stated in the file), bone_surface.vtp (the true "
+        "surface cut to the CT's field of view, LPS-tagged) and marker_centres.mrk.json. Markers are numbered 1 "
+        "to 4 in the reference body's (NDI tool's) order.",
+    )
+    phantom.add_argument("--out", type=Path, required=True, help="folder for the phantom's files")
     phantom.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
     phantom.add_argument("--seed", type=int, default=0)
-    phantom.add_argument("--noise", type=float, default=25.0, help="image noise, HU (default 25)")
+    phantom.add_argument("--noise", type=float, default=25.0, help="image noise, HU (default 25; low dose: 40-60)")
+    marker = {"type": int, "choices": range(1, 5), "metavar": "N"}
+    phantom.add_argument("--partial", **marker, help="make marker N (1-4) partial: a cap missing")
+    phantom.add_argument("--deformed", **marker, help="make marker N (1-4) deformed: stretched by 20 %%")
+    phantom.add_argument("--cut-marker", **marker, help="let the edge of the field of view cut marker N's sphere")
+    for part, default_diameter in (("post", 3.0), ("frame", 6.0)):
+        phantom.add_argument(
+            f"--{part}-material",
+            choices=BODY_MATERIALS,
+            default="plastic",
+            help=f"the reference body's {part}s: plastic (150 HU, below the bone threshold; default), "
+            "dense-polymer (1000 HU) or aluminium (2500 HU): then spheres, posts and frame are one bright object",
+        )
+        phantom.add_argument(
+            f"--{part}-diameter", type=float, default=default_diameter, help=f"mm (default {default_diameter:g})"
+        )
     phantom.add_argument(
-        "--partial", type=int, choices=range(4), metavar="N", help="make marker N (0-3) partial: a cap missing"
+        "--post-length", type=float, default=12.0, help="from the sphere's centre to the frame, mm (default 12)"
     )
-    phantom.add_argument("--deformed", type=int, choices=range(4), metavar="N", help="make marker N (0-3) deformed")
+    phantom.add_argument(
+        "--metal",
+        choices=("none", "pin"),
+        default="none",
+        help="pin: a 5 mm steel pin through the shaft where the bracket is clamped, with streak artefacts",
+    )
+    phantom.add_argument(
+        "--oblique",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help="turn the scanner grid by DEG about an oblique axis (a non-identity direction matrix)",
+    )
     phantom.set_defaults(run=_run_phantom)
 
     reproduce = commands.add_parser("reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms")
@@ -211,8 +271,7 @@ def _run_register(arguments):
     clock = time.perf_counter()
     ipc = read_surface_points(arguments.ipc, space)
     ppc = read_points(arguments.ppc, space).points
-    markers_image = read_points(arguments.markers_image, space).points
-    markers_patient = read_points(arguments.markers_patient, space).points
+    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
     targets_image = targets_patient = None
     if arguments.targets_image:
         targets_image = read_points(arguments.targets_image, space).points
@@ -232,12 +291,40 @@ def _run_register(arguments):
         fle_mm=arguments.fle,
     )
     seconds = time.perf_counter() - clock
-    print(_format_result(result, len(ipc), seconds))
+    print("".join(f"WARNING: {warning}\n" for warning in marker_warnings) + _format_result(result, len(ipc), seconds))
     if arguments.json:
         document = result.to_dict()
+        document["warnings"] = marker_warnings + document["warnings"]
         document["seconds"] = seconds
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
     return 0
+
+
+def _read_markers_pair(arguments, space):
+    """Image and patient marker centres, paired by marker number; flagged ones refused unless accepted.
+
+    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): a warning for each flagged marker used.
+    """
+    image = read_markers(arguments.markers_image, space)
+    patient = read_markers(arguments.markers_patient, space)
+    markers_image, markers_patient, _ = pair_markers(image, patient)
+    if not image.flagged():
+        return markers_image, markers_patient, []
+    flagged = flagged_message(image)
+    if not arguments.accept_flagged_markers:
+        raise ValueError(
+            f"{arguments.markers_image}: {flagged} (flagged by ramsicp ipc: the centre may be off); check it in "
+            "the CT, then delete it from the file (3 markers are enough) or correct it and relabel it 'ok', "
+            "or pass --accept-flagged-markers to use it anyway"
+        )
+    return (
+        markers_image,
+        markers_patient,
+        [
+            f"{flagged} in {arguments.markers_image} (flagged by ramsicp ipc), used as you asked: the coarse "
+            "registration may be off by that sphere's error"
+        ],
+    )
 
 
 def _format_result(result, ipc_count, seconds):
@@ -490,11 +577,12 @@ def _run_ipc(arguments):
     clock = time.perf_counter()
     volume = load_volume(arguments.ct)
     load_seconds = time.perf_counter() - clock
+    tool = tool_marker_geometry(arguments.tool)
     image = process_ct(
         volume,
         threshold,
         fill_cavities=not arguments.keep_cavities,
-        tool_markers=tool_marker_geometry(arguments.tool),
+        tool_markers=tool,
         progress=_ProgressBar(),
     )
     seconds = {"load": load_seconds, **image.seconds}
@@ -507,24 +595,24 @@ def _run_ipc(arguments):
     else:
         write_surface(arguments.out, points, triangles)
     if arguments.labelmap is not None:
-        labels = segmentation.labelmap([sphere.label for sphere in spheres])
-        save_nrrd(arguments.labelmap, CTVolume(voxels=labels, ijk_to_ras=volume.ijk_to_ras))
-    if arguments.markers is not None and spheres:
-        write_points(
-            arguments.markers,
-            np.array([sphere.centre for sphere in spheres]),
-            labels=[f"M{i + 1} {sphere.status}" for i, sphere in enumerate(spheres)],
+        save_nrrd(
+            arguments.labelmap, CTVolume(voxels=_sphere_labelmap(segmentation, spheres), ijk_to_ras=volume.ijk_to_ras)
         )
+    if arguments.markers is not None:
+        write_markers(arguments.markers, image.centres, [s.number for s in spheres], [s.status for s in spheres])
     voxels = "x".join(str(n) for n in volume.voxels.shape)
     print(f"CT               {arguments.ct}: {voxels} voxels of {' x '.join(f'{s:g}' for s in volume.spacing)} mm")
     print(f"threshold        {segmentation.threshold_hu:.0f} HU")
     print(f"IPC              {len(points):,} points -> {arguments.out}")
-    for number, sphere in enumerate(spheres):
+    for sphere in spheres:
         centre = ", ".join(f"{value:.2f}" for value in sphere.centre)
+        name = f"marker {sphere.number}" if sphere.number else "marker ?"
         print(
-            f"marker {number + 1}         ({centre}) radius {sphere.radius_mm:.2f} mm, residual "
-            f"{sphere.residual_mm:.3f} mm, {sphere.status}"
+            f"{name:<17}({centre}) radius {sphere.radius_mm:.2f} mm, residual {sphere.residual_mm:.3f} mm, "
+            f"{sphere.status}" + (f" ({sphere.note})" if sphere.note else "")
         )
+    if arguments.markers is not None:
+        print(f"marker centres   {len(image.usable)} of {len(tool)} usable -> {arguments.markers}")
     print("time             " + ", ".join(f"{name.replace('_', ' ')} {value:.2f} s" for name, value in seconds.items()))
     for warning in warnings:
         print(f"warning: {warning}")
@@ -536,11 +624,32 @@ def _run_ipc(arguments):
             "threshold_hu": segmentation.threshold_hu,
             "ipc_points": len(points),
             "spheres": [sphere.to_dict() for sphere in spheres],
+            "usable_markers": [sphere.number for sphere in image.usable],
+            "ipc_points_left_out_near_metal": image.surface.left_out,
             "warnings": warnings,
             "seconds": seconds,
         }
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    if arguments.markers is not None and len(image.usable) < len(tool) and not arguments.accept_fewer:
+        missing = [n for n in range(1, len(tool) + 1) if n not in {s.number for s in image.usable}]
+        print(
+            f"ramsicp ipc: error: only {len(image.usable)} of {len(tool)} marker centres are usable (not usable: "
+            f"marker {', '.join(map(str, missing))}); {arguments.markers} holds every sphere found with its status. "
+            "Check the reference body in the CT or place the missing centres by hand; --accept-fewer exits 0",
+            file=sys.stderr,
+        )
+        return EXIT_TOO_FEW_MARKERS
     return 0
+
+
+def _sphere_labelmap(segmentation, spheres):
+    """Labelmap: 1 for the bone, 1 + n for marker n's sphere (spheres not paired with a marker after those)."""
+    count = max([sphere.number for sphere in spheres] + [0])
+    values = []
+    for sphere in spheres:
+        count += 0 if sphere.number else 1
+        values.append(1 + (sphere.number or count))
+    return segmentation.labelmap([sphere.label for sphere in spheres], values)
 
 
 def _run_phantom(arguments):
@@ -551,10 +660,26 @@ def _run_phantom(arguments):
         if arguments.deformed in defects:
             raise ValueError("--partial and --deformed name the same marker; pick two different ones")
         defects[arguments.deformed] = "deformed"
+    body = ReferenceBodyModel(
+        post_material=arguments.post_material,
+        frame_material=arguments.frame_material,
+        post_diameter_mm=arguments.post_diameter,
+        post_length_mm=arguments.post_length,
+        frame_diameter_mm=arguments.frame_diameter,
+    )
     patient, vertices, triangles = shipped_patient(arguments.bone, arguments.seed)
     clock = time.perf_counter()
     volume, truth = make_ct_phantom(
-        patient, vertices, triangles, seed=arguments.seed, noise_hu=arguments.noise, defects=defects
+        patient,
+        vertices,
+        triangles,
+        seed=arguments.seed,
+        noise_hu=arguments.noise,
+        defects=defects,
+        body=body,
+        metal=None if arguments.metal == "none" else arguments.metal,
+        direction=rotated_direction(arguments.oblique),
+        cut_marker=arguments.cut_marker,
     )
     paths = write_phantom(arguments.out, volume, truth)
     shape = "x".join(str(n) for n in volume.voxels.shape)
@@ -563,7 +688,8 @@ def _run_phantom(arguments):
         f"{time.perf_counter() - clock:.1f} s"
     )
     for name, path in paths.items():
-        print(f"  {name:<13} {path}")
+        print(f"  {name:<15} {path}  [{FILE_FRAMES[name]}]")
+    print("  bone_surface.vtp is cut to the CT's field of view; markers are numbered 1-4 in the tool's order")
     return 0
 
 
