@@ -10,6 +10,7 @@ import pytest
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.core.registration import register
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.io.marker_files import read_markers, write_markers
 from RAMSICPRegistrationLib.io.point_files import write_points
 from RAMSICPRegistrationLib.io.surface_files import write_surface
 
@@ -161,3 +162,68 @@ def test_console_script_module_runs():
         [sys.executable, "-m", "RAMSICPRegistrationLib.cli", "--version"], capture_output=True, text=True, check=True
     )
     assert completed.stdout.startswith("ramsicp 0.1.0")
+
+
+def _markers_with_status(folder, trial, statuses, numbers=(1, 2, 3, 4)):
+    """The image-side markers as ``ramsicp ipc`` writes them: labels 'M<n> <status>'."""
+    path = folder / "markers_ct.mrk.json"
+    write_markers(path, trial.markers_image[[n - 1 for n in numbers]], numbers, statuses)
+    return path
+
+
+def test_register_refuses_markers_flagged_by_ipc(case_files, tmp_path, capsys):
+    """Issue 14, item 4: a partial or deformed centre from ``ramsicp ipc`` is not used without a word."""
+    folder, _, trial = case_files
+    flagged = _markers_with_status(tmp_path, trial, ["ok", "partial", "ok", "deformed"])
+    arguments = _arguments(folder)
+    arguments[arguments.index("--markers-image") + 1] = str(flagged)
+    assert main(arguments) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and "Traceback" not in error
+    assert "marker 2 is partial and marker 4 is deformed" in error and "--accept-flagged-markers" in error
+    output = tmp_path / "result.json"
+    assert main(arguments + ["--accept-flagged-markers", "--json", str(output)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("WARNING: marker 2 is partial and marker 4 is deformed")
+    warnings = json.loads(output.read_text())["warnings"]
+    assert warnings[0].startswith("marker 2 is partial and marker 4 is deformed") and "used as you asked" in warnings[0]
+
+
+def test_register_pairs_markers_by_number_when_one_is_left_out(case_files, tmp_path, capsys):
+    """Delete a flagged marker from the file: the other three keep their partners in the tool geometry."""
+    folder, ipc, trial = case_files
+    three = _markers_with_status(tmp_path, trial, ["ok", "ok", "ok"], numbers=(1, 2, 4))
+    arguments = _arguments(folder, "--method", "cr", "--json", str(tmp_path / "result.json"))
+    arguments[arguments.index("--markers-image") + 1] = str(three)
+    assert main(arguments) == 0
+    document = json.loads((tmp_path / "result.json").read_text())
+    expected = register(
+        SurfaceIndex(ipc),
+        trial.ppc,
+        trial.markers_image[[0, 1, 3]],
+        trial.markers_patient[[0, 1, 3]],
+        trial.targets_image,
+        trial.targets_patient,
+        method="cr",
+    )
+    np.testing.assert_allclose(document["reference_to_image"], expected.reference_to_image, atol=1e-9)
+    assert document["fre_mm"] == pytest.approx(expected.fre_mm, abs=1e-9)
+    capsys.readouterr()
+    wrong = tmp_path / "wrong.mrk.json"
+    write_markers(wrong, trial.markers_image[[0, 1, 3]], [1, 2, 5], ["ok", "ok", "ok"])
+    arguments[arguments.index("--markers-image") + 1] = str(wrong)
+    assert main(arguments) == 2
+    assert "marker 5 has no partner (" in capsys.readouterr().err
+
+
+def test_marker_files_round_trip_numbers_and_statuses(tmp_path):
+    centres = np.arange(12.0).reshape(4, 3)
+    for name in ("m.mrk.json", "m.fcsv"):
+        write_markers(tmp_path / name, centres, [3, 1, 0, 2], ["ok", "partial", "deformed", "ok"])
+        markers = read_markers(tmp_path / name)
+        np.testing.assert_allclose(markers.points, centres, atol=1e-12)
+        assert markers.numbers == (3, 1, None, 2) and markers.statuses == ("ok", "partial", "deformed", "ok")
+        assert markers.flagged() == [(1, "partial"), (3, "deformed")]
+    write_points(tmp_path / "plain.csv", centres)  # no labels: no numbers, no status, pairs row by row
+    plain = read_markers(tmp_path / "plain.csv")
+    assert plain.numbers == (None,) * 4 and plain.statuses == (None,) * 4 and plain.flagged() == []

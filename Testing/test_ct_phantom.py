@@ -82,6 +82,13 @@ def test_phantom_command_numbers_markers_from_1_and_states_frames(tmp_path, caps
     assert "deformed" in captured.out.split("marker 4", 1)[1].splitlines()[0]
     assert "only 2 of 4 marker centres are usable (not usable: marker 1, 4)" in captured.err
     assert read_points(out / "m.fcsv").labels == ("M1 partial", "M2 ok", "M3 ok", "M4 deformed")
+    truth_centres = np.array(document["marker_centres"])
+    np.testing.assert_allclose(read_points(out / "m.fcsv").points[1:3], truth_centres[1:3], atol=0.1)
+    accepted = ["ipc", str(out / "ct.nrrd"), "--out", str(out / "ipc.vtp"), "--markers", str(out / "a.mrk.json")]
+    assert main(accepted + ["--accept-fewer"]) == 0  # the user accepts 2 usable centres
+    assert "error" not in capsys.readouterr().err
+    assert main(accepted[:-1] + [str(out / "a.csv")]) == 2  # a csv file would lose the numbers and statuses
+    assert "use .mrk.json or .fcsv" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stopped:  # markers are numbered 1 to 4
         main(["phantom", "--out", str(out), "--partial", "0"])
     assert stopped.value.code == 2 and "invalid choice: 0" in capsys.readouterr().err
@@ -157,3 +164,28 @@ def test_real_ct_surface_matches_an_independent_segmentation():
     distances, _ = cKDTree(surface.points).query(above_cut)
     assert len(above_cut) > 1000
     assert np.median(distances) < 2.0 and np.percentile(distances, 90) < 5.0
+
+
+def test_real_ct_metal_implant_and_its_streaks_are_left_out_of_the_ipc():
+    """The TotalSegmentator CT's left femur holds metal (a nail with a screw into the femoral head): none of its
+    surface, and no surface in the streak zone of its slices, is in the IPC; the bone beyond keeps its surface."""
+    from scipy.spatial import cKDTree
+
+    volume = load_volume(DATA / "example_ct.nii.gz")
+    surface = bone_surface(volume, segment_bone(volume))
+    metal_ijk = np.argwhere(volume.voxels >= 2500)  # the raw CT, not the library's denoised copy
+    assert len(metal_ijk) > 300
+    metal = volume.ijk_to_ras_points(metal_ijk)
+    distance, _ = cKDTree(metal).query(surface.points)
+    assert distance.min() > 6.0 - 0.5 * np.linalg.norm(volume.spacing)  # 6 mm (2 voxels) from any metal voxel
+    points_ijk = volume.ras_to_ijk_points(surface.points)
+    slices = np.rint(points_ijk[:, 2]).astype(int)
+    for k in range(metal_ijk[:, 2].min() - 1, metal_ijk[:, 2].max() + 2):
+        near = metal_ijk[np.abs(metal_ijk[:, 2] - k) <= 1][:, :2] * volume.spacing[:2]
+        here = points_ijk[slices == k][:, :2] * volume.spacing[:2]
+        if len(near) and len(here):
+            assert cKDTree(near).query(here)[0].min() >= 30.0  # streaks lie in the scan planes
+    assert surface.left_out > 2000
+    # Just above the metal's slices the left hip bone has its surface again.
+    above = slices == metal_ijk[:, 2].max() + 3
+    assert np.sum(above & (np.linalg.norm(surface.points - metal.mean(axis=0), axis=1) < 60.0)) > 50

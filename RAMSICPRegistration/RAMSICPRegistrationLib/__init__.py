@@ -77,6 +77,10 @@ _EXPORTS = {
     "read_surface_mesh": "io.surface_files",
     "write_surface": "io.surface_files",
     "tool_marker_geometry": "io.ndi_tools",
+    "MarkerSet": "io.marker_files",
+    "read_markers": "io.marker_files",
+    "write_markers": "io.marker_files",
+    "pair_markers": "io.marker_files",
     # image side
     "CTVolume": "image.volume_io",
     "load_volume": "image.volume_io",
@@ -84,9 +88,14 @@ _EXPORTS = {
     "bone_surface": "image.ct_segmentation",
     "detect_marker_spheres": "image.marker_spheres",
     "order_to_tool": "image.marker_spheres",
+    "match_to_tool": "image.marker_spheres",
+    "find_metal_zone": "image.metal",
     "process_ct": "image.ct_pipeline",
     # simulation
     "make_ct_phantom": "simulation.ct_phantom",
+    "make_reference_body_phantom": "simulation.reference_body_phantom",
+    "ReferenceBodyModel": "simulation.ct_painting",
+    "MetalRod": "simulation.ct_painting",
 }
 
 __all__ = sorted(_EXPORTS)

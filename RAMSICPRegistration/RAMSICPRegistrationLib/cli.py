@@ -20,7 +20,7 @@ from .experiments.experiments import EXPERIMENTS, run_experiments
 from .image.ct_pipeline import process_ct
 from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
 from .image.volume_io import CTVolume, load_volume, save_nrrd
-from .io.marker_files import flagged_message, pair_markers, read_markers, write_markers
+from .io.marker_files import check_markers_path, flagged_message, pair_markers, read_markers, write_markers
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from .io.point_files import POINT_SUFFIXES, _suffix, read_points, write_points
 from .io.surface_files import read_surface_points, write_surface
@@ -187,7 +187,7 @@ def _parser():
     ipc.add_argument(
         "--markers",
         type=Path,
-        help="write the marker-sphere centres (.mrk.json, .fcsv, ...), labelled 'M<n> <status>' (n: the tool's "
+        help="write the marker-sphere centres (.mrk.json or .fcsv), labelled 'M<n> <status>' (n: the tool's "
         f"marker number; status ok, partial or deformed); exit code {EXIT_TOO_FEW_MARKERS} when fewer than the "
         "tool's markers are usable (the file is written all the same)",
     )
@@ -574,6 +574,8 @@ def _run_ipc(arguments):
     for path in (arguments.out, arguments.markers):
         if path is not None and _suffix(path) not in POINT_SUFFIXES + (".vtk", ".vtp", ".stl", ".ply", ".obj"):
             raise ValueError(f"{path}: unknown output type")
+    if arguments.markers is not None:
+        check_markers_path(arguments.markers)
     clock = time.perf_counter()
     volume = load_volume(arguments.ct)
     load_seconds = time.perf_counter() - clock

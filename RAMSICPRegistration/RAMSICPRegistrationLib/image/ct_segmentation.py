@@ -118,7 +118,7 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
     return BoneSegmentation(
         smoothed=smoothed,
         threshold_hu=threshold_hu,
-        labels=labels.astype(np.int32),
+        labels=labels.astype(np.int32, copy=False),
         bone_label=bone_label,
         object_labels=objects,
     )
@@ -137,7 +137,7 @@ class BoneSurface:
     left_out: int = 0
 
 
-def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
+def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", leave_out_metal=True):
     """The bone's outer iso-surface in RAS mm (the IPC).
 
     Args:
@@ -148,6 +148,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
             it, both measured in this CT, which removes the blur's outward bias of a low threshold (0.6 mm on
             the phantoms at 200 HU). It needs voxels that resolve the cortex (at most ``HALF_MAX_MAX_VOXEL_MM``);
             coarser CTs get the threshold surface. ``'threshold'`` uses the segmentation threshold; or a number.
+        leave_out_metal: drop the surface in the metal zone (``metal.find_metal_zone``); False keeps it, to
+            see what the metal does.
     """
     mask = segmentation.bone_mask
     low, high = _bounding_box(mask, pad=4)
@@ -170,8 +172,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max"):
     vertices_ijk, triangles = iso_surface(image, level)
     if len(vertices_ijk) == 0:
         raise ValueError("the bone has no surface at the threshold; check the threshold")
-    metal = find_metal_zone(volume, segmentation.smoothed)
-    spoilt = metal.contains_ijk(vertices_ijk + low)
+    metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high))
+    spoilt = metal.contains_ijk(vertices_ijk + low) if leave_out_metal else np.zeros(len(vertices_ijk), dtype=bool)
     if spoilt.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
         logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))

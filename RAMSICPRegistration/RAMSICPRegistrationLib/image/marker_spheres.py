@@ -53,6 +53,8 @@ COVERAGE_LIMIT = 0.85
 CANDIDATE_DEPTH = 0.45
 #: ... and at most r + this (mm); deeper points lie in something thicker than a sphere.
 CANDIDATE_EXCESS_MM = 1.5
+#: The distance map is computed on a grid about this fine (mm), whatever the CT's voxels: the fit refines.
+CANDIDATE_GRID_MM = 1.0
 #: Edge points farther than this from the sphere's surface (mm) are not the sphere's.
 SHELL_WINDOW_MM = 1.5
 #: Edge points whose outward normal turns more than this from the radial direction are posts or frame.
@@ -267,15 +269,17 @@ def label_sphere_voxels(volume, segmentation, spheres):
 
 def _candidates(volume, segmentation, radius):
     """(centre (3,) RAS, object label) of every place in a non-bone object where a near-sphere-sized ball fits."""
-    spacing = volume.spacing
+    # The distance map needs no finer grid than about CANDIDATE_GRID_MM: the fit refines the centre.
+    step = np.maximum(1, np.floor(CANDIDATE_GRID_MM / volume.spacing)).astype(int)
+    spacing = volume.spacing * step
     slices = ndimage.find_objects(segmentation.labels)
     footprint = _ball_footprint(spacing, 1.0)
     found = []
     for label in segmentation.object_labels:
         region = slices[label - 1]
-        low = np.array([max(s.start - 2, 0) for s in region])
-        high = np.array([min(s.stop + 2, n) for s, n in zip(region, segmentation.labels.shape)])
-        box = tuple(slice(a, b) for a, b in zip(low, high))
+        low = np.array([max(s.start - 2 * k, 0) for s, k in zip(region, step)])
+        high = np.array([min(s.stop + 2 * k, n) for s, k, n in zip(region, step, segmentation.labels.shape)])
+        box = tuple(slice(a, b, k) for a, b, k in zip(low, high, step))
         mask = segmentation.labels[box] == label
         # Padding gives the object background around it, except where it meets the edge of the field of view.
         depth = ndimage.distance_transform_edt(mask, sampling=spacing)
@@ -287,7 +291,7 @@ def _candidates(volume, segmentation, radius):
         order = np.argsort(-depth[peaks], kind="stable")
         kept = []
         for index in indices[order]:
-            centre = volume.ijk_to_ras_points((index + low)[None])[0]
+            centre = volume.ijk_to_ras_points((index * step + low)[None])[0]
             if all(np.linalg.norm(centre - other) > radius for other in kept):
                 kept.append(centre)
         found.extend((centre, label) for centre in kept)
@@ -332,6 +336,7 @@ def _fit_candidate(volume, smoothed, centre, radius, label):
     normals = _outward_normals(volume, image, vertices)
     selected = None
     for _ in range(3):
+        previous = centre
         offsets_to_centre = points - centre
         distance_to_centre = np.linalg.norm(offsets_to_centre, axis=1)
         radial = offsets_to_centre / np.maximum(distance_to_centre, 1e-9)[:, None]
@@ -343,6 +348,8 @@ def _fit_candidate(volume, smoothed, centre, radius, label):
         centre, fitted_radius, rms, keep = fit_sphere(points[selected])
         if abs(fitted_radius - radius) > NOT_A_SPHERE_MM:
             return None
+        if np.linalg.norm(centre - previous) < 0.01:
+            break  # the window would select the same points again
     inliers = points[selected][keep]
     coverage = _coverage(inliers - centre)
     if coverage < MIN_COVERAGE:

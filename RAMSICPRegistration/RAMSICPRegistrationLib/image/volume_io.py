@@ -34,11 +34,15 @@ class CTVolume:
 
     def ijk_to_ras_points(self, ijk):
         """Map (N, 3) voxel indices (may be fractional) to RAS mm."""
-        return np.asarray(ijk, dtype=np.float64) @ self.ijk_to_ras[:3, :3].T + self.ijk_to_ras[:3, 3]
+        # einsum, not matmul: an (N, 3) x (3, 3) product gains nothing from BLAS, whose threads only contend.
+        return (
+            np.einsum("ij,kj->ik", np.asarray(ijk, dtype=np.float64), self.ijk_to_ras[:3, :3]) + self.ijk_to_ras[:3, 3]
+        )
 
     def ras_to_ijk_points(self, ras):
         """Map (N, 3) RAS points (mm) to fractional voxel indices."""
-        return (np.asarray(ras, dtype=np.float64) - self.ijk_to_ras[:3, 3]) @ np.linalg.inv(self.ijk_to_ras[:3, :3]).T
+        offsets = np.asarray(ras, dtype=np.float64) - self.ijk_to_ras[:3, 3]
+        return np.einsum("ij,kj->ik", offsets, np.linalg.inv(self.ijk_to_ras[:3, :3]))
 
 
 def check_volume(voxels, ijk_to_ras, name="CT volume"):

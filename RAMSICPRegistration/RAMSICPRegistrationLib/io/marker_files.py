@@ -16,9 +16,11 @@ import numpy as np
 from .point_files import read_points, write_points
 
 STATUSES = ("ok", "partial", "deformed")
+#: Point files that keep a label per point, so the numbers and statuses survive.
+LABELLED_SUFFIXES = (".mrk.json", ".json", ".fcsv")
 #: Statuses whose centre may be off: the coarse registration must not use them without the user's word.
 FLAGGED = ("partial", "deformed")
-_LABEL = re.compile(r"^\s*M(\d+|\?)\b\s*(\w*)")
+_LABEL = re.compile(r"^\s*M(\d+|\?)(?=\s|$)\s*(\w*)")
 
 
 @dataclass(frozen=True)
@@ -50,9 +52,23 @@ def marker_label(number, status):
 
 
 def write_markers(path, centres, numbers, statuses):
-    """Write marker centres (K, 3) RAS with their numbers (1-based; 0 = not paired) and statuses as labels."""
+    """Write marker centres (K, 3) RAS with their numbers (1-based; 0 = not paired) and statuses as labels.
+
+    Raises:
+        ValueError: a file type without labels (csv, txt, npy would lose the numbers and statuses).
+    """
+    check_markers_path(path)
     labels = [marker_label(number, status) for number, status in zip(numbers, statuses)]
     write_points(path, np.asarray(centres, dtype=np.float64).reshape(-1, 3), labels=labels)
+
+
+def check_markers_path(path):
+    """Raise ValueError unless ``path`` is a point file that keeps labels (LABELLED_SUFFIXES)."""
+    if not any(str(path).lower().endswith(suffix) for suffix in LABELLED_SUFFIXES):
+        raise ValueError(
+            f"{path}: marker centres go in a file that keeps each marker's number and status: "
+            f"use {' or '.join(LABELLED_SUFFIXES[::2])}"
+        )
 
 
 def read_markers(path, untagged_space="RAS"):

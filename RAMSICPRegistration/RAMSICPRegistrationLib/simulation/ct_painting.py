@@ -56,7 +56,8 @@ class ReferenceBodyModel:
     Each post stands ``post_length_mm`` from its sphere's centre along the tool's +x axis (the markers' normal);
     the frame joins the posts' feet to the hub, where the bracket holds the body. Materials are keys of
     ``MATERIALS_HU``: plastic stays below a 200 HU bone threshold, dense polymer and aluminium do not, so then
-    spheres, posts and frame form one bright object.
+    spheres, posts and frame form one bright object. Any key of ``MATERIALS_HU`` is accepted ('marker' makes a
+    post as bright as the spheres).
     """
 
     post_material: str = "plastic"
@@ -67,7 +68,7 @@ class ReferenceBodyModel:
 
     def __post_init__(self):
         for name in ("post_material", "frame_material"):
-            if getattr(self, name) not in BODY_MATERIALS:
+            if getattr(self, name) not in MATERIALS_HU:
                 raise ValueError(f"{name} {getattr(self, name)!r}: use one of {', '.join(BODY_MATERIALS)}")
         for name in ("post_diameter_mm", "post_length_mm", "frame_diameter_mm"):
             value = getattr(self, name)

@@ -5,7 +5,8 @@ and frame of plastic, dense polymer or aluminium, a steel pin with streaks, low-
 grid, a field of view that cuts a sphere, damaged spheres. The scene, in RAS mm:
 
 * the shaft: a straight tube along z through (0, 0), outer radius ``SHAFT_RADIUS_MM``, cortex
-  ``SHAFT_CORTEX_MM`` thick, fatty marrow inside, in air (its surface is known exactly, for the IPC);
+  ``SHAFT_CORTEX_MM`` thick, fatty marrow inside, wrapped in ``SOFT_TISSUE_MM`` of soft tissue, in air (its
+  surface is known exactly, for the IPC; streaks over the soft tissue can raise it above the bone threshold);
 * the NDI reference body (8700339 by default) 75 mm lateral (+x) and 45 mm anterior (+y) of the shaft axis,
   its markers facing anterior turned by 20 degrees about z, its long axis along z, as in the virtual patient;
 * a carbon-fibre bracket from the frame's hub to the shaft, and with ``metal='pin'`` a 5 mm steel pin along the
@@ -39,6 +40,7 @@ from .ct_phantom import PAPER_SPACING_MM, cut_through_sphere
 
 SHAFT_RADIUS_MM = 12.0
 SHAFT_CORTEX_MM = 2.5
+SOFT_TISSUE_MM = 15.0
 BODY_OFFSET_MM = (75.0, 45.0)
 BODY_TURN_DEG = 20.0
 BRACKET_RADIUS_MM = 4.0
@@ -133,14 +135,18 @@ def body_pose(markers_reference):
 
 
 def _paint_shaft(volume, z_range):
-    """The tube: cortex between SHAFT_RADIUS_MM - SHAFT_CORTEX_MM and SHAFT_RADIUS_MM, marrow inside."""
-    low = np.array([-SHAFT_RADIUS_MM - 2.0, -SHAFT_RADIUS_MM - 2.0, z_range[0] - 2.0])
-    high = np.array([SHAFT_RADIUS_MM + 2.0, SHAFT_RADIUS_MM + 2.0, z_range[1] + 2.0])
-    box, ras = box_around(volume, low, high)
+    """Soft tissue, then the tube: cortex from SHAFT_RADIUS_MM - SHAFT_CORTEX_MM to SHAFT_RADIUS_MM, marrow inside."""
+    outer = SHAFT_RADIUS_MM + SOFT_TISSUE_MM
+    box, ras = box_around(
+        volume,
+        np.array([-outer - 2.0, -outer - 2.0, z_range[0] - 2.0]),
+        np.array([outer + 2.0, outer + 2.0, z_range[1] + 2.0]),
+    )
     if box is None:
         return
     from_axis = np.hypot(ras[..., 0], ras[..., 1])
     beyond_ends = np.maximum(z_range[0] - ras[..., 2], ras[..., 2] - z_range[1])
+    blend(volume, box, np.maximum(from_axis - outer, beyond_ends), MATERIALS_HU["soft_tissue"])
     blend(volume, box, np.maximum(from_axis - SHAFT_RADIUS_MM, beyond_ends), MATERIALS_HU["cortex"])
     inner = SHAFT_RADIUS_MM - SHAFT_CORTEX_MM
     blend(volume, box, np.maximum(from_axis - inner, beyond_ends + SHAFT_CORTEX_MM), MATERIALS_HU["marrow"])
