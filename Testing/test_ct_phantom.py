@@ -84,11 +84,6 @@ def test_phantom_command_numbers_markers_from_1_and_states_frames(tmp_path, caps
     assert read_points(out / "m.fcsv").labels == ("M1 partial", "M2 ok", "M3 ok", "M4 deformed")
     truth_centres = np.array(document["marker_centres"])
     np.testing.assert_allclose(read_points(out / "m.fcsv").points[1:3], truth_centres[1:3], atol=0.1)
-    accepted = ["ipc", str(out / "ct.nrrd"), "--out", str(out / "ipc.vtp"), "--markers", str(out / "a.mrk.json")]
-    assert main(accepted + ["--accept-fewer"]) == 0  # the user accepts 2 usable centres
-    assert "error" not in capsys.readouterr().err
-    assert main(accepted[:-1] + [str(out / "a.csv")]) == 2  # a csv file would lose the numbers and statuses
-    assert "use .mrk.json or .fcsv" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stopped:  # markers are numbered 1 to 4
         main(["phantom", "--out", str(out), "--partial", "0"])
     assert stopped.value.code == 2 and "invalid choice: 0" in capsys.readouterr().err

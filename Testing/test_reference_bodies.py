@@ -4,10 +4,13 @@ low-dose noise, a turned scanner grid, a sphere cut by the field of view. True c
 import numpy as np
 import pytest
 
+from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.core.transforms import apply_transform
 from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
 from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone
 from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, match_to_tool
+from RAMSICPRegistrationLib.image.volume_io import save_nrrd
+from RAMSICPRegistrationLib.io.marker_files import read_markers
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.ct_painting import (
     MetalRod,
@@ -80,8 +83,14 @@ def test_the_streak_really_crosses_the_sphere():
     assert np.abs(change).max() > 150.0
 
 
-def test_sphere_cut_by_the_field_of_view_is_flagged_and_not_used():
+@pytest.fixture(scope="module")
+def cut_sphere():
     volume, truth = make_reference_body_phantom(body=ALUMINIUM, cut_marker=3)
+    return volume, truth
+
+
+def test_sphere_cut_by_the_field_of_view_is_flagged_and_not_used(cut_sphere):
+    volume, truth = cut_sphere
     image = process_ct(volume, tool_markers=TOOL)
     by_number = {sphere.number: sphere for sphere in image.spheres}
     assert sorted(by_number) == [1, 2, 3, 4]
@@ -159,3 +168,21 @@ def test_a_rod_or_a_frame_alone_is_no_marker(aluminium):
     detection = detect_marker_spheres(blanked, segment_bone(blanked))
     assert detection.spheres == () and detection.rejected > 0
     assert any("found 0 marker-sphere candidates" in warning for warning in detection.warnings)
+
+
+def test_ipc_writes_every_sphere_found_and_exits_3_unless_fewer_are_accepted(cut_sphere, tmp_path, capsys):
+    """Issue 12, item 4: with 3 of 4 centres usable the markers file is written with each status, exit 3."""
+    volume, truth = cut_sphere
+    save_nrrd(tmp_path / "ct.nrrd", volume)
+    arguments = ["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp"), "--markers"]
+    assert main(arguments + [str(tmp_path / "m.mrk.json")]) == 3
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("ramsicp ipc: error: only 3 of 4 marker centres are usable (not usable: marker 3)")
+    assert "\n" not in error and "--accept-fewer" in error
+    markers = read_markers(tmp_path / "m.mrk.json")
+    assert markers.numbers == (1, 2, 3, 4) and markers.statuses == ("ok", "ok", "partial", "ok")
+    np.testing.assert_allclose(markers.points, truth.marker_centres, atol=TARGET_MM)
+    assert main(arguments + [str(tmp_path / "accepted.fcsv"), "--accept-fewer"]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(arguments + [str(tmp_path / "m.csv")]) == 2  # a csv file would lose the numbers and statuses
+    assert "use .mrk.json or .fcsv" in capsys.readouterr().err
