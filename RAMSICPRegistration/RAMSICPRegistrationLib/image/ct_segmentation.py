@@ -107,7 +107,7 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
             f"{float(smoothed.max()):.0f} HU); lower the threshold or check that the CT is in HU"
         )
     labels, count = ndimage.label(foreground)
-    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    sizes = np.bincount(labels[foreground], minlength=count + 1)  # the foreground only: a few % of the CT
     sizes[0] = 0
     bone_label = int(np.argmax(sizes))
     voxel_mm3 = float(np.prod(volume.spacing))
