@@ -143,6 +143,25 @@ def test_cli_ipc_bad_inputs(tmp_path, capsys):
     assert "give a number of HU or 'auto'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--noise", "-5"], "noise -5.0 HU: give a standard deviation of 0 or more"),
+        (["--oblique", "nan"], "grid rotation nan degrees: give a finite angle"),
+        (["--post-diameter", "-1"], "post diameter -1.0 mm: give a positive number of mm"),
+        (["--partial", "2", "--deformed", "2"], "--partial and --deformed name the same marker"),
+    ],
+)
+def test_phantom_bad_options_are_one_line_before_any_work(tmp_path, capsys, options, message):
+    assert main(["phantom", "--out", str(tmp_path / "p"), *options]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and "\n" not in error and "Traceback" not in error
+    assert not (tmp_path / "p").exists()
+    (tmp_path / "file").write_text("")
+    assert main(["phantom", "--out", str(tmp_path / "file")]) == 2
+    assert "is a file; give a folder" in capsys.readouterr().err
+
+
 def test_real_ct_surface_matches_an_independent_segmentation():
     from scipy.spatial import cKDTree
 

@@ -655,6 +655,8 @@ def _sphere_labelmap(segmentation, spheres):
 
 
 def _run_phantom(arguments):
+    if arguments.out.exists() and not arguments.out.is_dir():
+        raise ValueError(f"--out {arguments.out} is a file; give a folder for the phantom's files")
     defects = {}
     if arguments.partial is not None:
         defects[arguments.partial] = "partial"
@@ -662,6 +664,7 @@ def _run_phantom(arguments):
         if arguments.deformed in defects:
             raise ValueError("--partial and --deformed name the same marker; pick two different ones")
         defects[arguments.deformed] = "deformed"
+    direction = rotated_direction(arguments.oblique)
     body = ReferenceBodyModel(
         post_material=arguments.post_material,
         frame_material=arguments.frame_material,
@@ -680,7 +683,7 @@ def _run_phantom(arguments):
         defects=defects,
         body=body,
         metal=None if arguments.metal == "none" else arguments.metal,
-        direction=rotated_direction(arguments.oblique),
+        direction=direction,
         cut_marker=arguments.cut_marker,
     )
     paths = write_phantom(arguments.out, volume, truth)

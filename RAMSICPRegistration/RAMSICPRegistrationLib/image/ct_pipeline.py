@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, segment_bone
-from .marker_spheres import detect_marker_spheres, label_sphere_voxels, match_to_tool
+from .marker_spheres import detect_marker_spheres, label_sphere_voxels, match_to_tool, sphere_warning
 
 #: A sphere set whose best pairing with the tool geometry leaves more than this FRE (mm) is not that tool.
 TOOL_MISMATCH_FRE_MM = 1.0
@@ -70,7 +70,10 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     warnings = list(detection.warnings)
     if tool_markers is not None and spheres:
         spheres, warning = _pair_with_tool(spheres, tool_markers)
-        warnings += [warning] if warning else []
+        # Name the flagged spheres by their marker numbers now that they have them.
+        unnamed = {sphere_warning(sphere) for sphere in detection.spheres}
+        named = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"]
+        warnings = named + [w for w in warnings if w not in unnamed] + ([warning] if warning else [])
     seconds["marker_spheres"] = time.perf_counter() - clock
     report("marker spheres", 3, 3)
     if surface.left_out:

@@ -134,12 +134,7 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
         else:
             spheres.append(sphere)
     spheres = _without_duplicates(spheres, radius)
-    warnings = [
-        f"the sphere at ({', '.join(f'{v:.1f}' for v in sphere.centre)}) mm is {sphere.status}: {sphere.note}; "
-        "check it in the CT and move its centre by hand, or leave it out of the coarse registration"
-        for sphere in spheres
-        if sphere.status != "ok"
-    ]
+    warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"]
     good = sum(sphere.status == "ok" for sphere in spheres)
     if len(spheres) != expected:
         warnings.append(
@@ -152,6 +147,16 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
     for warning in warnings:
         logger.info("marker detection: %s", warning)
     return MarkerDetection(spheres=tuple(spheres), warnings=tuple(warnings), rejected=rejected)
+
+
+def sphere_warning(sphere):
+    """What to tell the user about a sphere that is not ``ok``: which one, what is wrong, what to do."""
+    where = f"({', '.join(f'{v:.1f}' for v in sphere.centre)}) mm"
+    name = f"marker {sphere.number} at {where}" if sphere.number else f"the sphere at {where}"
+    return (
+        f"{name} is {sphere.status}: {sphere.note}; check it in the CT and move its centre by hand, or leave it "
+        "out of the coarse registration"
+    )
 
 
 def fit_sphere(points, inlier_limit_mm=0.1):

@@ -73,7 +73,7 @@ class ReferenceBodyModel:
         for name in ("post_diameter_mm", "post_length_mm", "frame_diameter_mm"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} {value}: give a positive number of mm")
+                raise ValueError(f"{name[:-3].replace('_', ' ')} {value} mm: give a positive number of mm")
 
     def to_dict(self):
         return {
@@ -114,6 +114,9 @@ class MetalRod:
 def rotated_direction(degrees, axis=(1.0, 2.0, 3.0)):
     """A non-identity direction matrix: the LPS-aligned grid turned by ``degrees`` about ``axis`` (RAS)."""
     from ..core.transforms import rotation_about_axis
+
+    if not np.isfinite(degrees):
+        raise ValueError(f"grid rotation {degrees} degrees: give a finite angle")
 
     return rotation_about_axis(axis, np.radians(degrees)) @ LPS_DIRECTION
 
@@ -288,12 +291,17 @@ def add_metal_streaks(volume, box, metal_fraction, towards=None, count=STREAK_CO
 
 def scan(volume, noise_hu, seed):
     """The scanner: Gaussian blur (``PSF_SIGMA_MM``) and Gaussian noise (``noise_hu``), stored as int16 HU."""
-    if not np.isfinite(noise_hu) or noise_hu < 0:
-        raise ValueError(f"noise {noise_hu} HU: give a standard deviation of 0 or more (25 by default, 40-60 low dose)")
+    check_noise(noise_hu)
     blurred = ndimage.gaussian_filter(volume.voxels, PSF_SIGMA_MM / volume.spacing, truncate=3.0)
     noise = np.random.default_rng(seed).normal(scale=noise_hu, size=blurred.shape).astype(np.float32)
     voxels = np.clip(np.round(blurred + noise), -32768, 32767).astype(np.int16)
     return CTVolume(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
+
+
+def check_noise(noise_hu):
+    """Raise ValueError unless the noise is a standard deviation (HU, finite, 0 or more)."""
+    if not np.isfinite(noise_hu) or noise_hu < 0:
+        raise ValueError(f"noise {noise_hu} HU: give a standard deviation of 0 or more (25 by default, 40-60 low dose)")
 
 
 def check_defects(defects, count):

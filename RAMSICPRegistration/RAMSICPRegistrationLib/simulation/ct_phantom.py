@@ -38,6 +38,7 @@ from .ct_painting import (
     ReferenceBodyModel,
     add_metal_streaks,
     check_defects,
+    check_noise,
     fraction_inside,
     paint_capsule,
     paint_metal,
@@ -141,6 +142,7 @@ def make_ct_phantom(
     """
     body = body or ReferenceBodyModel()
     count = len(patient.markers_reference)
+    check_noise(noise_hu)
     defects = check_defects(defects, count)
     spacing = np.asarray(spacing, dtype=np.float64)
     markers = patient.markers_image

@@ -28,6 +28,7 @@ from .ct_painting import (
     blend,
     box_around,
     check_defects,
+    check_noise,
     paint_capsule,
     paint_metal,
     paint_reference_body,
@@ -85,6 +86,7 @@ def make_reference_body_phantom(
     """
     body = body or ReferenceBodyModel()
     markers_reference = tool_marker_geometry(tool_id)
+    check_noise(noise_hu)
     defects = check_defects(defects, len(markers_reference))
     radius = MARKER_DIAMETER_MM / 2.0
     pose = body_pose(markers_reference)
