@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ..io.vtk_arrays import image_data
+from ..io.vtk_arrays import image_data, triangle_arrays
 from .metal import METAL_HU, find_metal_zone
 
 logger = logging.getLogger(__name__)
@@ -218,7 +218,6 @@ def _surface_level(image, mask, threshold, level, spacing):
 
 def iso_surface(image, level):
     """Iso-surface of a 3-D array at ``level`` (VTK flying edges): vertices (M, 3) in index units, triangles (K, 3)."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkFiltersCore import vtkFlyingEdges3D
 
     edges = vtkFlyingEdges3D()
@@ -228,12 +227,7 @@ def iso_surface(image, level):
     edges.ComputeGradientsOff()
     edges.ComputeScalarsOff()
     edges.Update()
-    output = edges.GetOutput()
-    if output.GetNumberOfPoints() == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    vertices = vtk_to_numpy(output.GetPoints().GetData()).astype(np.float64)
-    triangles = vtk_to_numpy(output.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
-    return vertices, triangles
+    return triangle_arrays(edges.GetOutput())
 
 
 def resample_points(points, spacing_mm):

@@ -311,15 +311,10 @@ def _ball_footprint(spacing, radius_mm):
 
 def _box_offsets(volume, centre, half_mm):
     """Index box around an RAS point reaching ``half_mm`` in every direction, and the voxels' RAS offsets."""
-    corners = centre + half_mm * np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
-    ijk = volume.ras_to_ijk_points(corners)
-    low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
-    high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int) + 1, np.array(volume.voxels.shape))
-    if (high - low < 2).any():
+    box, ras = volume.voxels_within(centre - half_mm, centre + half_mm)
+    if box is None or min(s.stop - s.start for s in box) < 2:
         return None, None
-    box = tuple(slice(a, b) for a, b in zip(low, high))
-    grid = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(low, high)], indexing="ij"), axis=-1)
-    return box, volume.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape) - centre
+    return box, ras - centre
 
 
 def _fit_candidate(volume, smoothed, centre, radius, label):

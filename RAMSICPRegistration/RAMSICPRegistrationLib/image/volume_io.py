@@ -44,6 +44,30 @@ class CTVolume:
         offsets = np.asarray(ras, dtype=np.float64) - self.ijk_to_ras[:3, 3]
         return np.einsum("ij,kj->ik", offsets, np.linalg.inv(self.ijk_to_ras[:3, :3]))
 
+    def voxels_within(self, low_ras, high_ras):
+        """The voxels whose centres may lie in an RAS box (3,) to (3,) mm, which the grid may cut at a slant.
+
+        Returns:
+            (box, ras): the index box (3 slices) around them, and the RAS centres (I, J, K, 3) of its voxels;
+            (None, None) when the box lies outside the volume.
+        """
+        corners = np.array(
+            [
+                [x, y, z]
+                for x in (low_ras[0], high_ras[0])
+                for y in (low_ras[1], high_ras[1])
+                for z in (low_ras[2], high_ras[2])
+            ]
+        )
+        ijk = self.ras_to_ijk_points(corners)
+        low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
+        high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(self.voxels.shape) - 1)
+        if (high < low).any():
+            return None, None
+        box = tuple(slice(a, b + 1) for a, b in zip(low, high))
+        grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(low, high)], indexing="ij"), axis=-1)
+        return box, self.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape)
+
 
 def check_volume(voxels, ijk_to_ras, name="CT volume"):
     """Validate a volume; returns a CTVolume. Raises ValueError saying what to change."""

@@ -1,4 +1,5 @@
-"""numpy arrays to VTK data objects, in one place: image data from (I, J, K) arrays, poly data from points."""
+"""numpy arrays to VTK data objects and back, in one place: image data from (I, J, K) arrays, poly data from
+points and triangles, and a triangle mesh's points and triangles from poly data."""
 
 import numpy as np
 
@@ -39,3 +40,14 @@ def poly_data(points, triangles=None):
     else:
         mesh.SetPolys(cells)
     return mesh
+
+
+def triangle_arrays(mesh):
+    """Vertices (M, 3) float64 and triangles (K, 3) int64 of a ``vtkPolyData`` whose polygons are triangles."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    if mesh.GetNumberOfPoints() == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    vertices = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
+    triangles = vtk_to_numpy(mesh.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
+    return vertices, triangles

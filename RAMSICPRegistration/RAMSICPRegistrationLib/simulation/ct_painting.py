@@ -45,6 +45,12 @@ STREAK_WIDTH_MM = 0.8
 STREAK_DECAY_MM = 10.0
 STREAK_COUNT = 6
 
+#: The carbon-fibre bracket from the bone to the frame's hub, and the steel pin that fixes it to the bone (mm).
+BRACKET_RADIUS_MM = 4.0
+PIN_RADIUS_MM = 2.5
+PIN_OUTSIDE_MM = 15.0
+PIN_INSIDE_MM = 30.0
+
 #: The default scanner grid: i, j, k point L, P, S (an LPS-aligned grid).
 LPS_DIRECTION = np.diag([-1.0, -1.0, 1.0])
 
@@ -148,26 +154,6 @@ def sphere_extremes(centres, radius, direction=LPS_DIRECTION):
     return (np.asarray(centres, float)[:, None, :] + radius * along_axes[None]).reshape(-1, 3)
 
 
-def box_around(volume, low_ras, high_ras):
-    """Index box (slices) of the voxels within an RAS box, and their RAS centres (..., 3); (None, None) if outside."""
-    corners = np.array(
-        [
-            [x, y, z]
-            for x in (low_ras[0], high_ras[0])
-            for y in (low_ras[1], high_ras[1])
-            for z in (low_ras[2], high_ras[2])
-        ]
-    )
-    ijk = volume.ras_to_ijk_points(corners)
-    low = np.maximum(np.floor(ijk.min(axis=0)).astype(int), 0)
-    high = np.minimum(np.ceil(ijk.max(axis=0)).astype(int), np.array(volume.voxels.shape) - 1)
-    if (high < low).any():
-        return None, None  # the object lies outside the field of view
-    box = tuple(slice(a, b + 1) for a, b in zip(low, high))
-    grid = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(low, high)], indexing="ij"), axis=-1)
-    return box, volume.ijk_to_ras_points(grid.reshape(-1, 3)).reshape(grid.shape)
-
-
 def fraction_inside(signed_distance_mm, ramp_mm):
     """Partial-volume fraction from a signed distance (negative inside): a linear ramp one voxel wide."""
     return np.clip(0.5 - signed_distance_mm / ramp_mm, 0.0, 1.0)
@@ -188,7 +174,7 @@ def capsule_distance(points, start, end, radius):
 def paint_capsule(volume, start, end, radius, hu):
     start, end = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
     pad = radius + 2.0
-    box, ras = box_around(volume, np.minimum(start, end) - pad, np.maximum(start, end) + pad)
+    box, ras = volume.voxels_within(np.minimum(start, end) - pad, np.maximum(start, end) + pad)
     if box is not None:
         blend(volume, box, capsule_distance(ras, start, end, radius), hu)
 
@@ -196,7 +182,7 @@ def paint_capsule(volume, start, end, radius, hu):
 def paint_sphere(volume, centre, radius, defect=None, outward=None, hu=MATERIALS_HU["marker"]):
     """A marker sphere; ``defect`` 'partial' (a 4 mm cap missing opposite the post) or 'deformed' (stretched)."""
     pad = 1.3 * radius + 2.0
-    box, ras = box_around(volume, centre - pad, centre + pad)
+    box, ras = volume.voxels_within(centre - pad, centre + pad)
     if box is None:
         return
     offset = ras - centre
@@ -234,11 +220,43 @@ def paint_reference_body(volume, reference_to_image, markers_reference, model, r
         paint_sphere(volume, centre, radius, defects.get(number), outward=centre - foot)
 
 
+def pin_for_bracket(anchor, hub):
+    """The steel pin (MetalRod) that fixes the bracket: from inside the bracket through ``anchor`` (on the bone's
+    surface, RAS mm) into the bone, along the line from the frame's ``hub`` to the anchor."""
+    towards_hub = (hub - anchor) / np.linalg.norm(hub - anchor)
+    return MetalRod(
+        start=tuple(anchor + PIN_OUTSIDE_MM * towards_hub),
+        end=tuple(anchor - PIN_INSIDE_MM * towards_hub),
+        radius_mm=PIN_RADIUS_MM,
+    )
+
+
+def paint_mounted_body(volume, reference_to_image, markers_reference, model, radius, defects, anchor, metal=None):
+    """The bracket from ``anchor`` (a point on the bone's surface, RAS mm) to the frame's hub, the reference body,
+    and a MetalRod with its streaks (``metal``: None, a MetalRod, or 'pin' for ``pin_for_bracket``).
+
+    The bracket's clamp rests on the bone surface; it does not cut through the cortex. Returns the MetalRod
+    painted, or None.
+    """
+    _, hub = reference_body_feet(reference_to_image, markers_reference, model)
+    towards_hub = (hub - anchor) / np.linalg.norm(hub - anchor)
+    clamp = anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub
+    paint_capsule(volume, hub, clamp, BRACKET_RADIUS_MM, MATERIALS_HU["carbon"])
+    paint_reference_body(volume, reference_to_image, markers_reference, model, radius, defects)
+    if metal == "pin":
+        metal = pin_for_bracket(anchor, hub)
+    if metal is not None:
+        box, fraction = paint_metal(volume, metal)
+        if box is not None:
+            add_metal_streaks(volume, box, fraction, towards=metal.streak_towards)
+    return metal
+
+
 def paint_metal(volume, rod):
     """Paint a MetalRod and return its partial-volume fraction in its index box: (box, fraction) or (None, None)."""
     start, end = np.asarray(rod.start, dtype=np.float64), np.asarray(rod.end, dtype=np.float64)
     pad = rod.radius_mm + 2.0
-    box, ras = box_around(volume, np.minimum(start, end) - pad, np.maximum(start, end) + pad)
+    box, ras = volume.voxels_within(np.minimum(start, end) - pad, np.maximum(start, end) + pad)
     if box is None:
         return None, None
     signed = capsule_distance(ras, start, end, rod.radius_mm)

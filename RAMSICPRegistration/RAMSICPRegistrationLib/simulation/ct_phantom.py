@@ -29,20 +29,17 @@ from scipy.spatial import cKDTree
 
 from ..image.volume_io import CTVolume
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from ..io.vtk_arrays import poly_data
+from ..io.vtk_arrays import poly_data, triangle_arrays
 from .ct_painting import (
     LPS_DIRECTION,
     MATERIALS_HU,
     PSF_SIGMA_MM,
-    MetalRod,
     ReferenceBodyModel,
-    add_metal_streaks,
     check_defects,
     check_noise,
     fraction_inside,
-    paint_capsule,
-    paint_metal,
-    paint_reference_body,
+    paint_mounted_body,
+    pin_for_bracket,
     reference_body_feet,
     scan,
     scanner_grid,
@@ -59,11 +56,6 @@ CORTEX_THICKNESS_MM = 2.5
 EPIPHYSIS_MM = 60.0
 SOFT_TISSUE_MM = 15.0
 NOISE_HU = 25.0
-BRACKET_RADIUS_MM = 4.0
-#: The fixation pin: a 5 mm steel pin from inside the bracket through the shaft.
-PIN_RADIUS_MM = 2.5
-PIN_OUTSIDE_MM = 15.0
-PIN_INSIDE_MM = 30.0
 #: Where the field of view cuts a sphere: this far beyond its centre (mm), so about a third of it is missing.
 CUT_BEYOND_CENTRE_MM = 1.5
 #: Every file ``write_phantom`` writes, with its frame.
@@ -133,7 +125,8 @@ def make_ct_phantom(
         margin_mm: field of view beyond the markers and the bone region, on every side.
         below_cut_mm: how far below the osteotomy cut the bone region reaches.
         body: ReferenceBodyModel (plastic posts and frame by default).
-        metal: None, a MetalRod, or 'pin' for ``fixation_pin(patient)``.
+        metal: None, a MetalRod, or 'pin' for ``fixation_pin(patient)``: a 5 mm steel pin from inside the
+            bracket through the shaft.
         direction: (3, 3) RAS directions of the grid's i, j, k axes (columns); LPS-aligned by default.
         cut_marker: optional marker number (1 to 4) whose sphere the field of view cuts.
 
@@ -147,8 +140,6 @@ def make_ct_phantom(
     spacing = np.asarray(spacing, dtype=np.float64)
     markers = patient.markers_image
     radius = MARKER_DIAMETER_MM / 2.0
-    if metal == "pin":
-        metal = fixation_pin(patient, body)
     top = vertices[:, 2].max()
     bone_region = vertices[vertices[:, 2] >= patient.cut_height_mm - below_cut_mm]
     volume = scanner_grid(
@@ -159,16 +150,16 @@ def make_ct_phantom(
     logger.info("CT phantom grid %s voxels of %s mm", volume.voxels.shape, spacing.tolist())
 
     _paint_bone(volume, vertices, triangles, top, np.random.default_rng(seed))
-    feet, hub = reference_body_feet(patient.reference_to_image, patient.markers_reference, body)
-    bone_anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
-    towards_hub = (hub - bone_anchor) / np.linalg.norm(hub - bone_anchor)
-    # The bracket's clamp rests on the bone surface; it does not cut through the cortex.
-    paint_capsule(volume, hub, bone_anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub, BRACKET_RADIUS_MM, HU["carbon"])
-    paint_reference_body(volume, patient.reference_to_image, patient.markers_reference, body, radius, defects)
-    if metal is not None:
-        box, fraction = paint_metal(volume, metal)
-        if box is not None:
-            add_metal_streaks(volume, box, fraction, towards=metal.streak_towards)
+    metal = paint_mounted_body(
+        volume,
+        patient.reference_to_image,
+        patient.markers_reference,
+        body,
+        radius,
+        defects,
+        bone_anchor(patient, body),
+        metal,
+    )
     scanned = scan(volume, noise_hu, seed + 1)
     truth = PhantomTruth(
         reference_to_image=patient.reference_to_image.copy(),
@@ -194,16 +185,16 @@ def make_ct_phantom(
     return scanned, truth
 
 
-def fixation_pin(patient, body=None):
-    """The steel pin (MetalRod) that holds the reference body's bracket: from inside the bracket through the shaft."""
+def bone_anchor(patient, body=None):
+    """Where the bracket meets the bone (RAS mm): the IPC point nearest the frame's hub."""
     _, hub = reference_body_feet(patient.reference_to_image, patient.markers_reference, body or ReferenceBodyModel())
-    anchor = patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
-    towards_hub = (hub - anchor) / np.linalg.norm(hub - anchor)
-    return MetalRod(
-        start=tuple(anchor + PIN_OUTSIDE_MM * towards_hub),
-        end=tuple(anchor - PIN_INSIDE_MM * towards_hub),
-        radius_mm=PIN_RADIUS_MM,
-    )
+    return patient.ipc[np.argmin(np.linalg.norm(patient.ipc - hub, axis=1))]
+
+
+def fixation_pin(patient, body=None):
+    """The steel pin (MetalRod) that fixes the patient's bracket: from inside the bracket through the shaft."""
+    _, hub = reference_body_feet(patient.reference_to_image, patient.markers_reference, body or ReferenceBodyModel())
+    return pin_for_bracket(bone_anchor(patient, body), hub)
 
 
 def cut_through_sphere(volume, centres, radius, number):
@@ -286,7 +277,7 @@ def clip_to_field_of_view(vertices, triangles, volume):
 
     Triangles crossing the box's faces are cut exactly (VTK), so the surface ends at the field of view.
     """
-    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.util.numpy_support import numpy_to_vtk
     from vtkmodules.vtkCommonCore import vtkPoints
     from vtkmodules.vtkCommonDataModel import vtkPlanes
     from vtkmodules.vtkFiltersCore import vtkClipPolyData, vtkTriangleFilter
@@ -311,12 +302,7 @@ def clip_to_field_of_view(vertices, triangles, volume):
     triangulate = vtkTriangleFilter()
     triangulate.SetInputConnection(clip.GetOutputPort())
     triangulate.Update()
-    output = triangulate.GetOutput()
-    if output.GetNumberOfPoints() == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    clipped = vtk_to_numpy(output.GetPoints().GetData()).astype(np.float64)
-    cells = vtk_to_numpy(output.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
-    return clipped, cells
+    return triangle_arrays(triangulate.GetOutput())
 
 
 def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000):

@@ -22,16 +22,11 @@ from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, MARKER_DIAMETER_MM, tool_mark
 from .ct_painting import (
     LPS_DIRECTION,
     MATERIALS_HU,
-    MetalRod,
     ReferenceBodyModel,
-    add_metal_streaks,
     blend,
-    box_around,
     check_defects,
     check_noise,
-    paint_capsule,
-    paint_metal,
-    paint_reference_body,
+    paint_mounted_body,
     reference_body_feet,
     scan,
     scanner_grid,
@@ -44,7 +39,6 @@ SHAFT_CORTEX_MM = 2.5
 SOFT_TISSUE_MM = 15.0
 BODY_OFFSET_MM = (75.0, 45.0)
 BODY_TURN_DEG = 20.0
-BRACKET_RADIUS_MM = 4.0
 
 
 @dataclass(frozen=True)
@@ -106,16 +100,7 @@ def make_reference_body_phantom(
     _paint_shaft(volume, z_range)
     towards_hub = np.array([hub[0], hub[1], 0.0]) / np.hypot(hub[0], hub[1])
     anchor = np.array([0.0, 0.0, hub[2]]) + SHAFT_RADIUS_MM * towards_hub
-    paint_capsule(
-        volume, hub, anchor + (BRACKET_RADIUS_MM + 0.5) * towards_hub, BRACKET_RADIUS_MM, MATERIALS_HU["carbon"]
-    )
-    paint_reference_body(volume, pose, markers_reference, body, radius, defects)
-    if metal == "pin":
-        metal = MetalRod(start=tuple(anchor + 15.0 * towards_hub), end=tuple(anchor - 30.0 * towards_hub))
-    if metal is not None:
-        box, fraction = paint_metal(volume, metal)
-        if box is not None:
-            add_metal_streaks(volume, box, fraction, towards=metal.streak_towards)
+    metal = paint_mounted_body(volume, pose, markers_reference, body, radius, defects, anchor, metal)
     truth = ReferenceBodyTruth(
         marker_centres=markers,
         reference_to_image=pose,
@@ -139,8 +124,7 @@ def body_pose(markers_reference):
 def _paint_shaft(volume, z_range):
     """Soft tissue, then the tube: cortex from SHAFT_RADIUS_MM - SHAFT_CORTEX_MM to SHAFT_RADIUS_MM, marrow inside."""
     outer = SHAFT_RADIUS_MM + SOFT_TISSUE_MM
-    box, ras = box_around(
-        volume,
+    box, ras = volume.voxels_within(
         np.array([-outer - 2.0, -outer - 2.0, z_range[0] - 2.0]),
         np.array([outer + 2.0, outer + 2.0, z_range[1] + 2.0]),
     )
