@@ -68,7 +68,7 @@ def matched_filter_candidates(volume, segmentation, radius):
             centre = volume.ijk_to_ras_points((index + low)[None])[0]
             if all(np.linalg.norm(centre - other) > radius for other in kept):
                 kept.append(centre)
-        found.extend((centre, label) for centre in kept)
+        found.extend((centre, label, True) for centre in kept)
     return found
 
 
@@ -84,7 +84,7 @@ def component_candidates(volume, segmentation, radius):
         size = mask.sum() * float(np.prod(volume.spacing))
         if 0.3 * nominal <= size <= 2.0 * nominal and np.sqrt(eigenvalues[-1] / max(eigenvalues[0], 1e-9)) <= 1.8:
             centre = np.argwhere(mask).mean(axis=0) + [s.start for s in slices[label - 1]]
-            found.append((volume.ijk_to_ras_points(centre[None])[0], label))
+            found.append((volume.ijk_to_ras_points(centre[None])[0], label, True))
     return found
 
 

@@ -8,8 +8,12 @@ spheres, posts and frame form one bright object. Detection therefore does not as
    posts and frame are thinner and peak lower. Local peaks from ``CANDIDATE_DEPTH`` of the radius (a sphere with
    a missing cap still holds a ball that large) to ``CANDIDATE_EXCESS_MM`` above it are candidates, deepest
    first, one per sphere-sized neighbourhood: the erosion half of a morphological opening by a ball, whose
-   reconstruction the fit below replaces. A rod's peaks are candidates too, and the fit rejects them. An object
-   cut by the edge of the field of view has no edge there, so a cut sphere is still found, and then flagged.
+   reconstruction the fit below replaces. The distance map is taken on a grid of about ``CANDIDATE_GRID_MM``
+   (the fit refines the centre). A rod's peaks are candidates too, and the fit rejects them. An object cut by
+   the edge of the field of view has no edge there, so a cut sphere is still found, and then flagged. A matched
+   filter (FFT correlation with a ball-minus-shell template) found the same spheres on every reference body of
+   ``benchmarks/bench_marker_candidates.py`` in twice the time. Spheres joined to the bone itself (by a
+   bright bracket) are not looked for: the bone's object is left out.
 2. **Fit on the sphere's own surface.** Around a candidate, the half-maximum iso-surface (the level half-way
    between the sphere's core and its surroundings, both measured there, so blur does not bias it) gives sub-voxel
    edge points. Only points within ``SHELL_WINDOW_MM`` of the sphere and whose outward normal points away from the
@@ -55,6 +59,14 @@ CANDIDATE_DEPTH = 0.45
 CANDIDATE_EXCESS_MM = 1.5
 #: The distance map is computed on a grid about this fine (mm), whatever the CT's voxels: the fit refines.
 CANDIDATE_GRID_MM = 1.0
+#: An object whose bounding box holds fewer voxels than this fraction of a sphere is too small to be one.
+MIN_SPHERE_VOLUME = 0.3
+#: Inside a marker sphere, at 0.75 r from its centre, at least this fraction is bright, even with a cap missing
+#: (0.46 for a hemisphere); around a 6 mm rod about 0.35. A cheap look that spares the fit most rods.
+FILLED_INSIDE = 0.4
+#: Around a marker sphere, 2 mm beyond its surface, only its post and perhaps the frame are bright: a candidate
+#: whose surroundings are brighter than this fraction lies inside something bigger (a bone fragment, a vessel).
+CLEAR_AROUND = 0.5
 #: Edge points farther than this from the sphere's surface (mm) are not the sphere's.
 SHELL_WINDOW_MM = 1.5
 #: Edge points whose outward normal turns more than this from the radial direction are posts or frame.
@@ -127,8 +139,8 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
     """
     radius = diameter_mm / 2.0
     spheres, rejected = [], 0
-    for centre, label in _candidates(volume, segmentation, radius):
-        sphere = _fit_candidate(volume, segmentation.smoothed, centre, radius, label)
+    for centre, label, plausible in _candidates(volume, segmentation, radius):
+        sphere = _fit_candidate(volume, segmentation.smoothed, centre, radius, label) if plausible else None
         if sphere is None:
             rejected += 1
         else:
@@ -273,15 +285,19 @@ def label_sphere_voxels(volume, segmentation, spheres):
 
 
 def _candidates(volume, segmentation, radius):
-    """(centre (3,) RAS, object label) of every place in a non-bone object where a near-sphere-sized ball fits."""
+    """(centre (3,) RAS, object label, plausible) of every place in a non-bone object where a near-sphere-sized
+    ball fits; ``plausible`` is False where a quick look (``_shaped_like_a_marker``) already rules a sphere out."""
     # The distance map needs no finer grid than about CANDIDATE_GRID_MM: the fit refines the centre.
     step = np.maximum(1, np.floor(CANDIDATE_GRID_MM / volume.spacing)).astype(int)
     spacing = volume.spacing * step
     slices = ndimage.find_objects(segmentation.labels)
-    footprint = _ball_footprint(spacing, 1.0)
+    footprint = _ball_footprint(spacing, max(1.0, 1.5 * spacing.max()))  # at least the 18 nearest neighbours
+    smallest = MIN_SPHERE_VOLUME * 4.0 / 3.0 * np.pi * radius**3 / float(np.prod(volume.spacing))  # voxels
     found = []
     for label in segmentation.object_labels:
         region = slices[label - 1]
+        if np.prod([s.stop - s.start for s in region]) < smallest:
+            continue  # even its bounding box cannot hold what is left of a sphere
         low = np.array([max(s.start - 2 * k, 0) for s, k in zip(region, step)])
         high = np.array([min(s.stop + 2 * k, n) for s, k, n in zip(region, step, segmentation.labels.shape)])
         box = tuple(slice(a, b, k) for a, b, k in zip(low, high, step))
@@ -299,8 +315,28 @@ def _candidates(volume, segmentation, radius):
             centre = volume.ijk_to_ras_points((index * step + low)[None])[0]
             if all(np.linalg.norm(centre - other) > radius for other in kept):
                 kept.append(centre)
-        found.extend((centre, label) for centre in kept)
+        found.extend((c, label, _shaped_like_a_marker(volume, mask, low, step, c, radius)) for c in kept)
     return found
+
+
+def _shaped_like_a_marker(volume, mask, low, step, centre, radius):
+    """A cheap look before the fit: the candidate's object fills at least ``FILLED_INSIDE`` of a sphere of 0.75 r
+    around it (a marker sphere does, even with a cap missing; a post or a frame rod does not), and at most
+    ``CLEAR_AROUND`` of a sphere 2 mm outside r (a marker sphere has only its post there; a point deep inside a
+    bigger object has its object all round)."""
+    directions = _fibonacci_directions(100)
+    shape = np.array(mask.shape)
+
+    def filled(distance, outside_counts):
+        index = np.rint((volume.ras_to_ijk_points(centre + distance * directions) - low) / step).astype(int)
+        inside = np.all((index >= 0) & (index < shape), axis=1)
+        hits = np.full(len(index), outside_counts)
+        hits[inside] = mask[tuple(index[inside].T)]
+        return hits.mean()
+
+    # Beyond the crop there is the edge of the field of view or other objects: count it as the sphere inside
+    # (a cut sphere), as clear outside.
+    return filled(0.75 * radius, True) >= FILLED_INSIDE and filled(radius + 2.0, False) <= CLEAR_AROUND
 
 
 def _ball_footprint(spacing, radius_mm):
@@ -410,11 +446,16 @@ def _algebraic_fit(points):
     return centre, float(np.sqrt(max(solution[3] + centre @ centre, 1e-12)))
 
 
+def _fibonacci_directions(count):
+    """(count, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    index = np.arange(count) + 0.5
+    polar = np.arccos(1.0 - 2.0 * index / count)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * index
+    return np.column_stack((np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)))
+
+
 def _coverage(offsets, directions=200, cone_deg=20.0):
     """Fraction of evenly spread directions from the centre that have a surface point within ``cone_deg``."""
-    index = np.arange(directions) + 0.5
-    polar = np.arccos(1.0 - 2.0 * index / directions)
-    azimuth = np.pi * (1.0 + 5.0**0.5) * index
-    unit = np.column_stack((np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)))
+    unit = _fibonacci_directions(directions)
     offsets = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
     return float(np.mean(np.max(unit @ offsets.T, axis=1) >= np.cos(np.radians(cone_deg))))
