@@ -203,3 +203,27 @@ def test_real_ct_metal_implant_and_its_streaks_are_left_out_of_the_ipc():
     # Just above the metal's slices the left hip bone has its surface again.
     above = slices == metal_ijk[:, 2].max() + 3
     assert np.sum(above & (np.linalg.norm(surface.points - metal.mean(axis=0), axis=1) < 60.0)) > 50
+
+
+def test_tibia_phantom_with_an_aluminium_body_a_pin_low_dose_and_a_turned_grid(tibia_patient):
+    """Everything at once on the real tibia, with soft tissue round it: the IPC is the true surface (no pin, no
+    streak), the fused spheres are found to the target, in the tool's order."""
+    from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+    from RAMSICPRegistrationLib.simulation.ct_painting import ReferenceBodyModel, capsule_distance, rotated_direction
+    from RAMSICPRegistrationLib.simulation.ct_phantom import fixation_pin, make_ct_phantom
+    from RAMSICPRegistrationLib.simulation.package_data import bone_mesh
+
+    vertices, triangles = bone_mesh("right-tibia")
+    body = ReferenceBodyModel(post_material="aluminium", frame_material="aluminium")
+    volume, truth = make_ct_phantom(
+        tibia_patient, vertices, triangles, body=body, metal="pin", noise_hu=50.0, direction=rotated_direction(20.0)
+    )
+    assert not np.allclose(volume.direction, np.diag([-1.0, -1.0, 1.0]), atol=0.1)
+    image = process_ct(volume, tool_markers=tibia_patient.markers_reference)
+    assert [(sphere.number, sphere.status) for sphere in image.spheres] == [(n, "ok") for n in (1, 2, 3, 4)]
+    assert np.linalg.norm(image.centres - truth.marker_centres, axis=1).max() < 0.1
+    offsets = signed_distance_to_mesh(image.surface.points, vertices, triangles, np.random.default_rng(1))
+    assert abs(np.median(offsets)) < 0.05 and np.abs(offsets).max() < 0.3
+    pin = fixation_pin(tibia_patient, body)
+    distance = capsule_distance(image.surface.points, np.array(pin.start), np.array(pin.end), pin.radius_mm)
+    assert distance.min() > 2.0 and image.surface.left_out > 1000
