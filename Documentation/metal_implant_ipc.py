@@ -1,7 +1,7 @@
 """Draw Documentation/metal_implant_ipc.png: what the IPC does next to a metal implant in a real CT.
 
 The CT is TotalSegmentator's example (Testing/Data/example_ct.nii.gz, Apache-2.0): 3 mm voxels, the patient's
-left femur holding metal (a nail with a screw into the femoral head). Run from the repository's root:
+left femur holding metal (by its shape a nail with a screw into the femoral head). Run from the repository's root:
 
     python Documentation/metal_implant_ipc.py
 """

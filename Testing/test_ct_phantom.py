@@ -181,8 +181,9 @@ def test_real_ct_surface_matches_an_independent_segmentation():
 
 
 def test_real_ct_metal_implant_and_its_streaks_are_left_out_of_the_ipc():
-    """The TotalSegmentator CT's left femur holds metal (a nail with a screw into the femoral head): none of its
-    surface, and no surface in the streak zone of its slices, is in the IPC; the bone beyond keeps its surface."""
+    """The TotalSegmentator CT's left femur holds metal (by its shape a nail with a screw into the femoral head):
+    none of its surface, and no surface in the streak zone of its slices, is in the IPC; the bone beyond keeps its
+    surface."""
     from scipy.spatial import cKDTree
 
     volume = load_volume(DATA / "example_ct.nii.gz")

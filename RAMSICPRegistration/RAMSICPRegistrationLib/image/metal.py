@@ -9,11 +9,12 @@ trusted, for two reasons, so the IPC leaves out the bone surface in a **metal zo
   in the slice: streaks (photon starvation and beam hardening) lie in the scan planes, and they raise soft tissue
   above the bone threshold (false surface) or lower cortex below it (holes and false inner walls).
 
-``STREAK_REACH_MM`` was measured on the TotalSegmentator example CT (its left femur holds a nail with a screw
-into the femoral head): in the slices through the metal, the soft tissue's spread around its local median is
-35-95 HU at 10-20 mm from the metal and 32-55 HU at 20-30 mm, against 15-20 HU in slices without metal; beyond
-30 mm it stays under 40 HU, a quarter of the 160 HU between soft tissue and the 200 HU bone threshold. The slices
-are the volume's k axis (the scanner's axial planes for a CT stored as it was acquired).
+``STREAK_REACH_MM`` was measured on the TotalSegmentator example CT (its left femur holds metal, by its shape a
+nail with a screw into the femoral head): in the slices through the metal, the soft tissue's spread around its
+local median is 34-95 HU at 10-20 mm from the metal and 22-55 HU at 20-30 mm, against 15-27 HU in slices
+without metal; beyond 30 mm it stays under 40 HU, a quarter of the 160 HU between soft tissue and the 200 HU bone
+threshold (``Documentation/metal_streak_reach.py``). The slices are the volume's k axis (the scanner's axial
+planes for a CT stored as it was acquired).
 """
 
 from dataclasses import dataclass

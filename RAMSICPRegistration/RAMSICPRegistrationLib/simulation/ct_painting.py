@@ -40,6 +40,7 @@ MATERIALS_HU = {
 }
 #: Reference-body materials a user may choose for the posts and the frame.
 BODY_MATERIALS = ("plastic", "dense-polymer", "aluminium")
+#: The streak model's constants (see the module docstring).
 STREAK_HU = 200.0
 STREAK_WIDTH_MM = 0.8
 STREAK_DECAY_MM = 10.0
