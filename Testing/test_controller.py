@@ -317,3 +317,25 @@ def test_hold_still_collection_takes_the_mean_of_each_hold(tracked):
     assert controller.run("set_auto_collect", True) is None and controller.status().auto_collect
     controller.run("set_hold_still_collect", True)  # one mode at a time
     assert controller.status().hold_still_collect and not controller.status().auto_collect
+
+
+def test_flagged_markers_are_refused_and_numbered_markers_pair_by_number(tracked, scene, tibia_patient):
+    """As ``ramsicp register``: a marker the CT flagged is not used silently; deleting it leaves the others paired
+    by their numbers, so the coarse registration is still exact."""
+    controller, probe = tracked
+    parameters = controller.parameters
+    trial = tibia_patient.simulate_trial(np.random.default_rng(2), marker_fle_mm=0.0, probe_noise_mm=0.0)
+    parameters.ipcModel = mrml_nodes.model_node(scene, tibia_patient.ipc)
+    labels = ["M1 ok", "M2 partial", "M3 ok", "M4 ok"]
+    parameters.markersImage = mrml_nodes.fiducial_node(scene, trial.markers_image, labels)
+    parameters.markersPatient = mrml_nodes.fiducial_node(scene, trial.markers_patient)  # the tool: M1..M4
+    parameters.method = "cr"
+    for point in trial.ppc[:10]:
+        set_matrix(probe, pose_with_tip_at(point))
+        controller.run("collect_point")
+    assert controller.run("register") is None
+    assert controller.status().message.startswith("marker 2 is partial in the CT, so its centre may be off")
+    parameters.markersImage.RemoveNthControlPoint(1)  # the surgeon deletes marker 2
+    result = controller.run("register")
+    np.testing.assert_allclose(result.reference_to_image, tibia_patient.reference_to_image, atol=1e-6)
+    assert len(result.marker_residuals_mm) == 3

@@ -38,16 +38,19 @@ def test_volume_node_round_trip(scene, bone_and_sphere):
 
 def test_segmentation_node_has_bone_and_marker_segments(scene, bone_and_sphere):
     volume, segmentation, detection = bone_and_sphere
-    node = mrml_nodes.segmentation_node(scene, volume, segmentation, [s.label for s in detection.spheres])
+    import dataclasses
+
+    sphere = dataclasses.replace(detection.spheres[0], number=2)  # paired with the tool's second marker
+    node = mrml_nodes.segmentation_node(scene, volume, segmentation, [sphere])
     segments = node.GetSegmentation()
-    assert [segments.GetNthSegment(i).GetName() for i in range(segments.GetNumberOfSegments())] == ["bone", "marker 1"]
+    assert [segments.GetNthSegment(i).GetName() for i in range(segments.GetNumberOfSegments())] == ["bone", "marker 2"]
     # Export back to a labelmap on the CT's grid: the voxels are the segmentation's, voxel for voxel.
     reference = mrml_nodes.volume_node(scene, volume, "reference")
     exported = scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode")
     assert slicer.vtkSlicerSegmentationsModuleLogic.ExportVisibleSegmentsToLabelmapNode(node, exported, reference)
     labels = load_volume_labels(exported)
     assert np.count_nonzero(labels == 1) == np.count_nonzero(segmentation.bone_mask)
-    assert np.count_nonzero(labels == 2) == np.count_nonzero(segmentation.labels == detection.spheres[0].label)
+    assert np.count_nonzero(labels == 2) == np.count_nonzero(segmentation.labels == sphere.label)
     # Only the export above is a labelmap node: the temporary one used for the import is gone.
     assert scene.GetNodesByClass("vtkMRMLLabelMapVolumeNode").GetNumberOfItems() == 1
 

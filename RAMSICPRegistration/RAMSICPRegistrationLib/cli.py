@@ -19,6 +19,7 @@ from .experiments.experiment_report import write_outputs
 from .experiments.experiments import EXPERIMENTS, run_experiments
 from .image.ct_pipeline import process_ct
 from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
+from .image.marker_spheres import sphere_labelmap
 from .image.volume_io import CTVolume, load_volume, save_nrrd
 from .io.marker_files import check_markers_path, flagged_message, pair_markers, read_markers, write_markers
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
@@ -598,7 +599,7 @@ def _run_ipc(arguments):
         write_surface(arguments.out, points, triangles)
     if arguments.labelmap is not None:
         save_nrrd(
-            arguments.labelmap, CTVolume(voxels=_sphere_labelmap(segmentation, spheres), ijk_to_ras=volume.ijk_to_ras)
+            arguments.labelmap, CTVolume(voxels=sphere_labelmap(segmentation, spheres), ijk_to_ras=volume.ijk_to_ras)
         )
     if arguments.markers is not None:
         write_markers(arguments.markers, image.centres, [s.number for s in spheres], [s.status for s in spheres])
@@ -642,16 +643,6 @@ def _run_ipc(arguments):
         )
         return EXIT_TOO_FEW_MARKERS
     return 0
-
-
-def _sphere_labelmap(segmentation, spheres):
-    """Labelmap: 1 for the bone, 1 + n for marker n's sphere (spheres not paired with a marker after those)."""
-    count = max([sphere.number for sphere in spheres] + [0])
-    values = []
-    for sphere in spheres:
-        count += 0 if sphere.number else 1
-        values.append(1 + (sphere.number or count))
-    return segmentation.labelmap([sphere.label for sphere in spheres], values)
 
 
 def _run_phantom(arguments):

@@ -258,6 +258,22 @@ def match_to_tool(centres, tool_markers, usable=None, max_distance_mm=3.0):
     return numbers, fre
 
 
+def sphere_values(spheres):
+    """Labelmap value of each sphere: 1 + n for marker n, then the spheres not paired with a marker (2 + the
+    highest marker number, ...); 1 is the bone."""
+    count = max([sphere.number for sphere in spheres] + [0])
+    values = []
+    for sphere in spheres:
+        count += 0 if sphere.number else 1
+        values.append(1 + (sphere.number or count))
+    return values
+
+
+def sphere_labelmap(segmentation, spheres):
+    """(I, J, K) labelmap: 1 for the bone, 1 + n for marker n's sphere (``sphere_values``)."""
+    return segmentation.labelmap([sphere.label for sphere in spheres], sphere_values(spheres))
+
+
 def label_sphere_voxels(volume, segmentation, spheres):
     """Give each sphere's own voxels a label of their own in ``segmentation.labels`` (in place), split from the
     posts and frame they touch, so a labelmap shows the spheres and not the whole reference body.

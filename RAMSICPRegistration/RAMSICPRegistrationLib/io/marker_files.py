@@ -74,14 +74,20 @@ def check_markers_path(path):
 def read_markers(path, untagged_space="RAS"):
     """Read a markers file (any point file); numbers and statuses come from ``M<n> <status>`` labels."""
     point_set = read_points(path, untagged_space)
+    return labelled_markers(point_set.points, point_set.labels, str(path))
+
+
+def labelled_markers(points, labels, source=""):
+    """A MarkerSet of (K, 3) points whose numbers and statuses come from their ``M<n> <status>`` labels (a file's
+    points, or a markups node's control points); ``source`` names them in messages."""
     numbers, statuses = [], []
-    for label in point_set.labels:
+    for label in labels:
         match = _LABEL.match(label or "")
         number = int(match.group(1)) if match and match.group(1) != "?" else None
         status = match.group(2).lower() if match and match.group(2).lower() in STATUSES else None
         numbers.append(number)
         statuses.append(status)
-    return MarkerSet(points=point_set.points, numbers=tuple(numbers), statuses=tuple(statuses), path=str(path))
+    return MarkerSet(points=np.asarray(points), numbers=tuple(numbers), statuses=tuple(statuses), path=source)
 
 
 def pair_markers(image, patient):

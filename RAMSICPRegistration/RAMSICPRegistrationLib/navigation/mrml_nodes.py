@@ -24,25 +24,35 @@ def volume_node(scene, volume, name, labelmap=False):
     return node
 
 
-def segmentation_node(scene, volume, segmentation, spheres_labels=(), name="Bone segmentation"):
-    """Add a ``vtkMRMLSegmentationNode`` with a 'bone' segment and a 'marker N' segment per sphere label.
+def segmentation_node(scene, volume, segmentation, spheres=(), name="Bone segmentation"):
+    """Add a ``vtkMRMLSegmentationNode`` with a 'bone' segment and a 'marker <n>' segment per marker sphere.
 
     Args:
         scene: the vtkMRMLScene to add to.
         volume: the segmented CTVolume (its geometry).
         segmentation: BoneSegmentation.
-        spheres_labels: component labels of the marker spheres, in marker order.
+        spheres: the MarkerSpheres found (``number`` names the segment; 0: 'unpaired sphere').
     """
     import slicer
 
-    labels = type(volume)(voxels=segmentation.labelmap(spheres_labels), ijk_to_ras=volume.ijk_to_ras)
+    from ..image.marker_spheres import sphere_labelmap, sphere_values
+
+    labels = type(volume)(voxels=sphere_labelmap(segmentation, spheres), ijk_to_ras=volume.ijk_to_ras)
     labelmap = volume_node(scene, labels, name + " labels", labelmap=True)
     node = scene.AddNewNodeByClass("vtkMRMLSegmentationNode", name)
     if not slicer.vtkSlicerSegmentationsModuleLogic.ImportLabelmapToSegmentationNode(labelmap, node):
         scene.RemoveNode(labelmap)
         raise RuntimeError("Slicer could not import the bone labelmap into a segmentation node")
     scene.RemoveNode(labelmap)
-    names = ["bone"] + [f"marker {number + 1}" for number in range(len(spheres_labels))]
+    # Slicer makes one segment per label value, in increasing order: 1 the bone, 1 + n marker n.
+    named = {
+        1: "bone",
+        **{
+            value: f"marker {s.number}" if s.number else "unpaired sphere"
+            for value, s in zip(sphere_values(spheres), spheres)
+        },
+    }
+    names = [named[value] for value in sorted(named)]
     segments = node.GetSegmentation()
     for index, segment_name in enumerate(names[: segments.GetNumberOfSegments()]):
         segments.GetNthSegment(index).SetName(segment_name)

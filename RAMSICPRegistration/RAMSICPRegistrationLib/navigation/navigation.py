@@ -26,6 +26,7 @@ from ..core.transforms import apply_transform
 from ..image.ct_pipeline import process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
 from ..image.volume_io import load_volume
+from ..io.marker_files import flagged_message, labelled_markers, marker_label, pair_markers
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from ..io.point_files import write_points_atomic
 from . import mrml_nodes
@@ -123,12 +124,12 @@ class NavigationLogic:
         for old in (parameters.segmentation, parameters.ipcModel, parameters.markersImage):
             if old is not None:
                 self.scene.RemoveNode(old)
-        segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, [s.label for s in spheres])
+        segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, spheres)
         ipc = mrml_nodes.model_node(self.scene, surface.points, surface.triangles, name="IPC")
         markers = mrml_nodes.fiducial_node(
             self.scene,
             np.array([s.centre for s in spheres]).reshape(-1, 3),
-            [f"M{i + 1} {s.status}" for i, s in enumerate(spheres)],
+            [marker_label(s.number, s.status) for s in spheres],  # M<n> <status>, as ramsicp ipc writes them
             name="MarkersImage",
         )
         parameters.ctVolume = volume_node
@@ -222,8 +223,7 @@ class NavigationLogic:
         include = self._included(len(ppc_all))
         if include.sum() < 3:
             raise ValueError(f"only {include.sum()} probe points are included; include or collect at least 3")
-        markers_image = points_of(markers_image_node, "marker centres (image)")
-        markers_patient = points_of(markers_patient_node, "marker centres (patient)")
+        markers_image, markers_patient = _paired_markers(markers_image_node, markers_patient_node)
         if min(len(markers_image), len(markers_patient)) < 3:
             raise ValueError(
                 "the coarse registration needs at least 3 marker centres in both the image and the "
@@ -415,6 +415,28 @@ def load_scene(scene, path):
         if storage is not None and storage.GetFileName() and not storage.ReadData(node):
             raise RuntimeError(f"{path}: cannot read the data of {node.GetName()!r} from {storage.GetFileName()}")
     return scene
+
+
+def _paired_markers(markers_image_node, markers_patient_node):
+    """Image and patient marker centres paired as ``ramsicp register`` pairs them: by their ``M<n>`` labels when
+    the image side numbers its markers (so a deleted marker leaves the others paired right), else row by row.
+    Markers flagged partial or deformed in the CT are refused: their centres may be off."""
+    sets = []
+    for node, name in (
+        (markers_image_node, "marker centres (image)"),
+        (markers_patient_node, "marker centres (patient)"),
+    ):
+        points = points_of(node, name)
+        labels = [node.GetNthControlPointLabel(i) for i in range(len(points))] if node.IsA("vtkMRMLMarkupsNode") else []
+        sets.append(labelled_markers(points, labels or [""] * len(points), node.GetName()))
+    image, patient = sets
+    if image.flagged():
+        raise ValueError(
+            f"{flagged_message(image)} in the CT, so its centre may be off: drag it onto the sphere's centre and "
+            "rename it 'M<n> ok', or delete it (three markers are enough)"
+        )
+    markers_image, markers_patient, _ = pair_markers(image, patient)
+    return markers_image, markers_patient
 
 
 def _storable_nodes(scene):
