@@ -144,20 +144,18 @@ def register_every_way(index, data, markers_image=None):
     """
     from RAMSICPRegistrationLib.core.registration import register
 
-    case = dict(
-        ipc=index,
-        ppc=data.ppc,
-        markers_image=data.markers_image if markers_image is None else markers_image,
-        markers_patient=data.markers_patient,
-        targets_image=data.targets_image,
-        targets_patient=data.targets_patient,
-    )
-    plateau = register(method="cr-ramsicp", sweep=True, policy="rms-plateau", **case)
+    markers = data.markers_image if markers_image is None else markers_image
+
+    def again(method, **options):
+        targets = (data.targets_image, data.targets_patient)
+        return register(index, data.ppc, markers, data.markers_patient, *targets, method=method, **options)
+
+    plateau = again("cr-ramsicp", sweep=True, policy="rms-plateau")
     sweep = np.array([entry.tre_mm for entry in plateau.sweep])
     return {
-        "CR": register(method="cr", **case).tre_mm,
-        "CR-ICP": register(method="cr-icp", **case).tre_mm,
-        "fixed L = 5": register(method="cr-ramsicp", scale=5.0, **case).tre_mm,
+        "CR": again("cr").tre_mm,
+        "CR-ICP": again("cr-icp").tre_mm,
+        "fixed L = 5": again("cr-ramsicp", scale=5.0).tre_mm,
         "rms-plateau": plateau.tre_mm,
         "rms-plateau L": plateau.scale,
         "sweep": sweep,
