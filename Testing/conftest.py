@@ -1,5 +1,7 @@
 """Shared fixtures: known transforms and analytic surfaces whose answers can be computed by hand."""
 
+import contextlib
+
 import numpy as np
 import pytest
 
@@ -109,3 +111,54 @@ def headless_scene():
     logic.SetMRMLScene(scene)
     scene._markups_logic = logic  # keep the logic alive as long as the scene
     return scene
+
+
+#: The paper's Fig. 8 ("Reproducibility"): mean and SD of the TRE (mm) over 15 subjects.
+PAPER_FIG8_MM = {"CR": (1.33, 0.27), "CR-ICP": (0.89, 0.14), "CR-RAMSICP": (0.56, 0.08)}
+
+
+@contextlib.contextmanager
+def recorded_trials(module):
+    """Record every ``(index, data, markers_image)`` that ``module`` passes to ``evaluate_trial``, which still runs.
+
+    Yields the list the calls are appended to, so a test can register the same trials again its own way.
+    """
+    calls = []
+    evaluate_trial = module.evaluate_trial
+
+    def recording(index, data, markers_image=None):
+        calls.append((index, data, markers_image))
+        return evaluate_trial(index, data, markers_image)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(module, "evaluate_trial", recording)
+        yield calls
+
+
+def register_every_way(index, data, markers_image=None):
+    """One simulated trial (a TrialData) registered again by each method and policy, straight through ``register``.
+
+    Returns the TRE (mm, eq. 11) under 'CR', 'CR-ICP', 'fixed L = 5' (a single RAMSICP run at L = 5),
+    'rms-plateau' (a sweep chosen by that policy, its L under 'rms-plateau L'), 'sweep' (the TRE at every L of the
+    sweep, (21,)) and "paper's L" (the sweep's minimum, its L under "paper's L value").
+    """
+    from RAMSICPRegistrationLib.core.registration import register
+
+    markers = data.markers_image if markers_image is None else markers_image
+
+    def again(method, **options):
+        targets = (data.targets_image, data.targets_patient)
+        return register(index, data.ppc, markers, data.markers_patient, *targets, method=method, **options)
+
+    plateau = again("cr-ramsicp", sweep=True, policy="rms-plateau")
+    sweep = np.array([entry.tre_mm for entry in plateau.sweep])
+    return {
+        "CR": again("cr").tre_mm,
+        "CR-ICP": again("cr-icp").tre_mm,
+        "fixed L = 5": again("cr-ramsicp", scale=5.0).tre_mm,
+        "rms-plateau": plateau.tre_mm,
+        "rms-plateau L": plateau.scale,
+        "sweep": sweep,
+        "paper's L": float(sweep.min()),
+        "paper's L value": plateau.sweep[int(np.argmin(sweep))].scale,
+    }

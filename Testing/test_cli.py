@@ -1,6 +1,7 @@
 """The ramsicp command line end to end: its JSON equals the Python result; bad input is one line, exit 2."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -10,9 +11,22 @@ import pytest
 from RAMSICPRegistrationLib.cli import main
 from RAMSICPRegistrationLib.core.registration import register
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+from RAMSICPRegistrationLib.experiments import demo
 from RAMSICPRegistrationLib.io.marker_files import read_markers, write_markers
 from RAMSICPRegistrationLib.io.point_files import write_points
 from RAMSICPRegistrationLib.io.surface_files import write_surface
+
+from conftest import PAPER_FIG8_MM, recorded_trials, register_every_way
+
+#: The re-registration (see ``register_every_way``) that each row of the demo's table must equal, and the paper's
+#: Fig. 8 row it is printed beside.
+DEMO_ROWS = {
+    "CR": ("CR", "CR"),
+    "CR-ICP": ("CR-ICP", "CR-ICP"),
+    "CR-RAMSICP (L by min TRE, paper)": ("paper's L", "CR-RAMSICP"),
+    "CR-RAMSICP (rms-plateau, target-free)": ("rms-plateau", None),
+    "CR-RAMSICP (fixed L = 5)": ("fixed L = 5", None),
+}
 
 
 @pytest.fixture(scope="module")
@@ -120,38 +134,68 @@ def test_register_rejects_half_given_targets_and_missing_files(case_files, capsy
     assert "nothing.vtp: no such file" in capsys.readouterr().err
 
 
-def _check_demo_document(document, trials):
+def _check_demo_document(document, trials, registered):
+    """Every TRE of the demo's JSON equals its trial registered again, every summary its trials' mean and SD."""
+    modes = list(document["tre_mm"])
+    assert len(registered) == trials * len(modes)  # trial by trial, each marker mode in turn
+    for number, (index, data, markers) in enumerate(registered):
+        mode, trial = modes[number % len(modes)], number // len(modes)
+        assert (markers is None) == (mode == "manual")  # by hand: the trial's own markers
+        again = register_every_way(index, data, markers)
+        for label, values in document["tre_mm"][mode].items():
+            assert values[trial] == pytest.approx(again[DEMO_ROWS[label][0]], abs=1e-9), (mode, trial, label)
+        chosen = document["chosen_scales"][mode]
+        assert chosen["fixed"][trial] == 5.0 and chosen["targets"][trial] == again["paper's L value"]
+        assert chosen["rms-plateau"][trial] == again["rms-plateau L"]
     for mode, rows in document["tre_mm"].items():
         for label, values in rows.items():
             assert len(values) == trials
             assert document["summary_mm"][mode][label]["mean"] == pytest.approx(np.mean(values))
             assert document["summary_mm"][mode][label]["sd"] == pytest.approx(np.std(values, ddof=1))
-        # The paper's policy takes the minimum TRE over the sweep: never worse than the fixed L.
-        assert np.all(
-            np.array(rows["CR-RAMSICP (L by min TRE, paper)"]) <= np.array(rows["CR-RAMSICP (fixed L = 5)"]) + 1e-12
-        )
+
+
+def _printed_rows(printed):
+    """The demo's table as printed: label -> (mean, sd, paper mean, paper sd), numbers as text, None if blank."""
+    pattern = re.compile(r"^\s+(\S.*?)\s+(\d+\.\d\d) \+- (\d+\.\d\d)\s+(?:(\d+\.\d\d) \+- (\d+\.\d\d))?$")
+    return {match[1]: match.groups()[1:] for match in map(pattern.match, printed.splitlines()) if match}
 
 
 def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
     output = tmp_path / "demo.json"
-    assert main(["demo", "--image-source", "mesh", "--trials", "3", "--seed", "2", "--json", str(output)]) == 0
+    with recorded_trials(demo) as registered:
+        assert main(["demo", "--image-source", "mesh", "--trials", "3", "--seed", "2", "--json", str(output)]) == 0
     printed = capsys.readouterr().out
     document = json.loads(output.read_text())
     assert document["trials"] == 3 and document["ipc_points"] == 200_000 and document["probe_points"] == 40
     assert list(document["tre_mm"]) == ["manual"]
-    _check_demo_document(document, 3)
-    assert "1.33 +- 0.27" in printed and "CR-RAMSICP (L by min TRE, paper)" in printed
+    _check_demo_document(document, 3, registered)
+    rows = document["tre_mm"]["manual"]
+    # The minimum-TRE L is not L = 5 in some trial, so the paper's row and the fixed row cannot be swapped unseen.
+    assert any(
+        paper < fixed - 1e-3
+        for paper, fixed in zip(rows["CR-RAMSICP (L by min TRE, paper)"], rows["CR-RAMSICP (fixed L = 5)"])
+    )
+    table = _printed_rows(printed)
+    assert set(table) == set(DEMO_ROWS)
+    for label, values in rows.items():
+        paper = PAPER_FIG8_MM.get(DEMO_ROWS[label][1])
+        assert table[label] == (
+            f"{np.mean(values):.2f}",
+            f"{np.std(values, ddof=1):.2f}",
+            *((f"{paper[0]:.2f}", f"{paper[1]:.2f}") if paper else (None, None)),
+        )
 
 
 def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):
     output = tmp_path / "demo.json"
-    assert main(["demo", "--trials", "2", "--json", str(output)]) == 0
+    with recorded_trials(demo) as registered:
+        assert main(["demo", "--trials", "2", "--json", str(output)]) == 0
     document = json.loads(output.read_text())
     side = document["image_side"]
     assert max(side["automatic_marker_errors_mm"]) < 0.1  # the issue's target for automatic centres
     assert 50_000 < side["ipc_points"] < 300_000 and abs(side["ipc_offset_mm"]) < 0.1
     assert list(document["tre_mm"]) == ["manual", "automatic"]
-    _check_demo_document(document, 2)
+    _check_demo_document(document, 2, registered)
     # Automatic centres are a hundred times better than the paper's manual placement: the CR shows it.
     assert max(document["tre_mm"]["automatic"]["CR"]) < 0.3
     assert "marker centres found automatically in the CT" in capsys.readouterr().out

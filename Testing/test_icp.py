@@ -1,9 +1,9 @@
-"""ICP and RAMSICP: known poses recovered on an analytic surface, the ranges of eqs. 6-8, and L = 1."""
+"""ICP and RAMSICP: known poses recovered on an analytic surface, the ranges of eqs. 6-8, L = 1, the stopping rule."""
 
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.core.icp import MatchingRanges, icp, ramsicp
+from RAMSICPRegistrationLib.core.icp import DEFAULT_MAX_ITERATIONS, MatchingRanges, icp, ramsicp
 from RAMSICPRegistrationLib.core.paired_point import rigid_procrustes
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.core.transforms import (
@@ -17,6 +17,11 @@ from conftest import ellipsoid_points
 
 TRUE_POSE = make_transform(rotation_about_axis((1.0, 2.0, 3.0), np.radians(35.0)), (12.0, -7.0, 30.0))
 CR_ERROR = make_transform(rotation_about_axis((0.3, -1.0, 0.5), np.radians(1.0)), (0.4, -0.3, 0.25))
+#: The paper's stopping rule (after eq. 9): iterations end when the objective changes by less than 1e-5 mm.
+PAPER_EPSILON_MM = 1e-5
+#: The ellipsoid turned by 10 degrees about its long (x, 40 mm) axis: closest-point steps unwind the turn slowly,
+#: in about 30 iterations of which many change the RMS by between 1e-5 and 1e-2 mm.
+SLOW_TURN = make_transform(rotation_about_axis((1.0, 0.0, 0.0), np.radians(10.0)))
 
 
 @pytest.fixture(scope="module")
@@ -77,11 +82,13 @@ def test_scale_one_is_one_closest_point_procrustes_step(ellipsoid):
     assert result.rms_history_mm[0] == result.rms_history_mm[1]
 
 
-def _brute_force_match(ipc, centres, radii, moving):
-    """Eqs. 6-7 literally: closest IPC point to each moving point among those within k_i of its CR position."""
+def _brute_force_match(ipc, centres, scale, moving, min_radius_mm):
+    """Eqs. 6-8 literally, without a KD-tree: D_i is the distance from CR x_i to the closest of all IPC points,
+    k_i = max(L * D_i, min radius), and each moving point takes its closest IPC point with |y - CR x_i| <= k_i."""
     matches = []
-    for centre, radius, point in zip(centres, radii, moving):
-        in_range = np.flatnonzero(np.linalg.norm(ipc - centre, axis=1) <= radius)
+    for centre, point in zip(centres, moving):
+        from_centre = np.linalg.norm(ipc - centre, axis=1)
+        in_range = np.flatnonzero(from_centre <= max(scale * from_centre.min(), min_radius_mm))
         matches.append(in_range[np.argmin(np.linalg.norm(ipc[in_range] - point, axis=1))])
     return np.array(matches)
 
@@ -90,11 +97,16 @@ def _brute_force_match(ipc, centres, radii, moving):
 def test_range_matching_equals_brute_force(ellipsoid, scale, rng):
     points, index = ellipsoid
     centres = points[rng.choice(len(points), 30)] + rng.normal(scale=1.5, size=(30, 3))
-    ranges = MatchingRanges(index, centres, max_scale=5.0)
     moving = centres + rng.normal(scale=2.0, size=centres.shape)
-    distances, _ = index.nearest(centres)
-    radii = np.maximum(scale * distances, ranges.min_radius_mm) * (1 + 1e-9)
-    expected = _brute_force_match(points, centres, radii, moving)
+    # Three centres on IPC points (D = 0) whose closest neighbour is 0.09 mm away, moved towards it: only the
+    # minimum radius lets them reach it.
+    gaps, pairs = index.tree.query(points, k=2)
+    for row, first in enumerate(np.argsort(np.abs(gaps[:, 1] - 0.09))[:3]):
+        centres[row], neighbour = points[first], points[pairs[first, 1]]
+        moving[row] = centres[row] + 20.0 * (neighbour - centres[row])
+    ranges = MatchingRanges(index, centres, max_scale=5.0)
+    # 0.1 mm: the documented smallest k_i (interpretation 2 of core.icp), written here, not read from the code.
+    expected = _brute_force_match(points, centres, scale, moving, min_radius_mm=0.1)
     np.testing.assert_array_equal(ranges.matcher(scale)(moving), expected)
 
 
@@ -132,3 +144,41 @@ def test_max_iterations_is_reported(ellipsoid):
     )
     assert result.iterations == 2
     assert not result.converged
+
+
+@pytest.mark.parametrize("method", ["icp", "ramsicp"])
+def test_default_run_stops_when_and_only_when_the_rms_changes_by_less_than_1e_5_mm(ellipsoid, method):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 60)
+    start = SLOW_TURN @ TRUE_POSE
+    result = icp(index, ppc, start) if method == "icp" else ramsicp(index, ppc, start, scale=5.0)
+    history = np.array(result.rms_history_mm)
+    changes = np.abs(np.diff(history))
+    assert result.converged and result.iterations == len(history) < DEFAULT_MAX_ITERATIONS
+    assert changes[-1] < PAPER_EPSILON_MM  # it stops when the change falls below 1e-5 mm ...
+    assert np.all(changes[:-1] >= PAPER_EPSILON_MM)  # ... and not before
+    # A slow case: at least 5 earlier steps changed the RMS by less than 1e-2 mm (a looser tolerance stops there).
+    assert np.count_nonzero(changes[:-1] < 1e-2) >= 5
+    # Each step cannot raise the objective: the matches and the fit each minimise it (Besl and McKay 1992).
+    assert np.all(np.diff(history) <= 1e-12)
+
+
+def test_stopping_at_1e_2_mm_would_leave_the_points_half_a_millimetre_off(ellipsoid):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 60)
+    start = SLOW_TURN @ TRUE_POSE
+    assert _pose_error_mm(icp(index, ppc, start).transform, ppc) < 0.01  # the paper's tolerance reaches the pose
+    assert _pose_error_mm(icp(index, ppc, start, tolerance_mm=1e-2).transform, ppc) > 0.5
+
+
+@pytest.mark.parametrize("tolerance", [1e-1, 3e-2, 1e-2, 1e-3, 1e-4])
+def test_a_run_stops_at_the_first_change_below_its_tolerance(ellipsoid, tolerance):
+    points, index = ellipsoid
+    ppc = _patient_points(points, 60)
+    start = SLOW_TURN @ TRUE_POSE
+    full = ramsicp(index, ppc, start, scale=5.0, tolerance_mm=PAPER_EPSILON_MM)
+    changes = np.abs(np.diff(full.rms_history_mm))
+    stop = int(np.flatnonzero(changes < tolerance)[0]) + 2  # changes[h - 2] compares iterations h - 1 and h
+    result = ramsicp(index, ppc, start, scale=5.0, tolerance_mm=tolerance)
+    assert result.iterations == stop and result.converged
+    assert result.rms_history_mm == full.rms_history_mm[:stop]  # the same run, cut at its first small change
