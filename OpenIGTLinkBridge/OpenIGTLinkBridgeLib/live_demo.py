@@ -1,9 +1,10 @@
-"""``ramsicp demo --live``: simulator -> OpenIGTLink server -> receiver -> probe-point collection -> CR-RAMSICP.
+"""``ramsicp demo --live``: simulator -> OpenIGTLink server -> receiver -> probe-point collection -> registration.
 
 The simulated Vega plays the demo patient's touches; our NDI driver reads it, our server streams it at 60 Hz,
 our receiver writes the transform nodes of a real MRML scene, and points are collected the way a surgeon holds
 the probe still: when the tip has stayed within ``HOLD_STILL_MM`` for ``HOLD_FRAMES`` frames, the mean of those
-frames is taken. The collected points are registered exactly as the offline demo registers its points.
+frames is taken. The collected points are registered with the default method (``DEFAULT_METHOD``), beside the
+exact touches.
 """
 
 import logging
@@ -116,8 +117,7 @@ def run_live_demo(
         markers_patient=trial.markers_patient,
         targets_image=trial.targets_image,
         targets_patient=trial.targets_patient,
-        sweep=True,
-        policy="rms-plateau",
+        probe_noise_mm=probe_noise_mm,
     )
     live = register(index, collected, **options)
     reference = register(index, touched, **options)

@@ -65,10 +65,14 @@ def _parser():
     reg.add_argument("--markers-patient", required=True, help="the same centres in reference coordinates")
     reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
     reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
-    reg.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
+    reg.add_argument(
+        "--method",
+        choices=METHODS,
+        help=f"default {DEFAULT_METHOD} (markers and probe points in one fit); cr-ramsicp with --scale or --sweep",
+    )
     how = reg.add_mutually_exclusive_group()
-    how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5)")
-    how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy")
+    how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5; cr-ramsicp)")
+    how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy (cr-ramsicp)")
     reg.add_argument(
         "--scales",
         nargs=3,
@@ -184,7 +188,7 @@ def _run_register(arguments):
         markers_patient,
         targets_image,
         targets_patient,
-        method=arguments.method,
+        method=arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp"),
         scale=arguments.scale,
         sweep=arguments.sweep,
         scales=make_scales(*arguments.scales),
@@ -198,6 +202,11 @@ def _run_register(arguments):
         document["seconds"] = seconds
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
     return 0
+
+
+def _default_method_fits(arguments):
+    """--scale, --sweep and --policy are RAMSICP's: without --method they ask for cr-ramsicp."""
+    return arguments.scale is None and not arguments.sweep and arguments.policy is None
 
 
 def _format_result(result, ipc_count, seconds):
@@ -348,8 +357,8 @@ def _run_live_demo(arguments):
     print(f"  collected points vs the true touches: {np.sqrt(np.mean(error**2)):.2f} mm RMS, {error.max():.2f} mm max")
     for label, registered in (("live points", result.live), ("exact touches", result.reference)):
         print(
-            f"  CR-RAMSICP on the {label:<14} L = {registered.scale:g}: TRE {registered.tre_mm:.2f} mm, "
-            f"probe points {registered.ppc_rms_mm:.2f} mm RMS"
+            f"  {registered.method.upper()} on the {label:<14} TRE {registered.tre_mm:.2f} mm "
+            f"(predicted {registered.predicted_tre_rms_mm:.2f}), probe points {registered.ppc_rms_mm:.2f} mm RMS"
         )
     print(f"  total {time.perf_counter() - clock:.1f} s")
     return 0

@@ -3,8 +3,8 @@
 The paper's C-arm CT has 0.5 mm pixels and 0.625 mm slices. The phantom renders, with partial volume at every
 boundary (signed distances, not voxel labels):
 
-* the bone from a real mesh: cortical shell (``CORTEX_THICKNESS_MM``), fatty marrow in the shaft and cancellous
-  bone in the epiphysis (``EPIPHYSIS_MM`` below the top);
+* the bone from a real mesh: a cortical shell around fatty marrow in the shaft and cancellous bone in the
+  epiphysis of a long bone, or around cancellous bone throughout a flat bone (``ANATOMY``);
 * soft tissue around the bone, air elsewhere;
 * the reference body: 4 marker spheres (11.5 mm) at the NDI tool geometry, on plastic posts and a plastic frame
   joined to the bone by a carbon-fibre bracket. Plastic and carbon stay below the bone threshold, as in CT of
@@ -41,8 +41,13 @@ HU = {
     "plastic": 110.0,
     "carbon": 160.0,
 }
-CORTEX_THICKNESS_MM = 2.5
-EPIPHYSIS_MM = 60.0
+#: Per kind of bone (``VirtualPatient.anatomy``): cortical shell (mm), how far below the top the interior is
+#: cancellous bone rather than marrow (mm), and how far below the planned cut the field of view reaches (mm).
+#: An ilium's cortical tables are thinner than a tibial shaft's and hold cancellous bone between them.
+ANATOMY = {
+    "long-bone": {"cortex_mm": 2.5, "cancellous_below_top_mm": 60.0, "below_cut_mm": 110.0},
+    "flat-bone": {"cortex_mm": 1.5, "cancellous_below_top_mm": np.inf, "below_cut_mm": 100.0},
+}
 SOFT_TISSUE_MM = 15.0
 PSF_SIGMA_MM = 0.35
 NOISE_HU = 25.0
@@ -83,7 +88,7 @@ def make_ct_phantom(
     noise_hu=NOISE_HU,
     defects=None,
     margin_mm=12.0,
-    below_cut_mm=110.0,
+    below_cut_mm=None,
 ):
     """Render a CT phantom of a virtual patient.
 
@@ -95,12 +100,15 @@ def make_ct_phantom(
         noise_hu: standard deviation of the image noise (HU).
         defects: optional {marker number (0-3): 'partial' | 'deformed'}.
         margin_mm: field of view beyond the markers and the bone region.
-        below_cut_mm: how far below the osteotomy cut the field of view reaches.
+        below_cut_mm: how far below the osteotomy cut the field of view reaches (default: ``ANATOMY``'s).
 
     Returns:
         (CTVolume, PhantomTruth). The volume's i, j, k axes point L, P, S (an LPS-aligned scanner grid).
     """
     defects = dict(defects or {})
+    anatomy = ANATOMY[patient.anatomy]
+    if below_cut_mm is None:
+        below_cut_mm = anatomy["below_cut_mm"]
     spacing = np.asarray(spacing, dtype=np.float64)
     markers = patient.markers_image
     radius = MARKER_DIAMETER_MM / 2.0
@@ -108,7 +116,8 @@ def make_ct_phantom(
     bone_region = vertices[(vertices[:, 2] >= patient.cut_height_mm - below_cut_mm)]
     low = np.minimum(bone_region.min(axis=0), markers.min(axis=0) - radius) - margin_mm
     high = np.maximum(bone_region.max(axis=0), markers.max(axis=0) + radius) + margin_mm
-    low[2] = patient.cut_height_mm - below_cut_mm
+    # The scan ends inside the bone, below the cut, and holds every marker sphere whole.
+    low[2] = min(patient.cut_height_mm - below_cut_mm, markers[:, 2].min() - radius)
     high[2] = top + margin_mm
     # LPS-aligned grid: i runs to the left (-x RAS), j to posterior (-y), k superior.
     direction = np.diag([-1.0, -1.0, 1.0])
@@ -120,7 +129,7 @@ def make_ct_phantom(
     volume = CTVolume(voxels=np.full(tuple(shape), HU["air"], dtype=np.float32), ijk_to_ras=ijk_to_ras)
     logger.info("CT phantom grid %s voxels of %s mm", tuple(shape), spacing.tolist())
 
-    _paint_bone(volume, vertices, triangles, top, np.random.default_rng(seed))
+    _paint_bone(volume, vertices, triangles, top, anatomy, np.random.default_rng(seed))
     _paint_reference_body(volume, patient, radius, defects)
     sigma_voxels = PSF_SIGMA_MM / spacing
     blurred = ndimage.gaussian_filter(volume.voxels, sigma_voxels, truncate=3.0)
@@ -139,7 +148,8 @@ def make_ct_phantom(
             "noise_hu": noise_hu,
             "psf_sigma_mm": PSF_SIGMA_MM,
             "hu": HU,
-            "cortex_thickness_mm": CORTEX_THICKNESS_MM,
+            "anatomy": patient.anatomy,
+            "cortex_thickness_mm": anatomy["cortex_mm"],
             "seed": seed,
         },
     )
@@ -189,7 +199,7 @@ def _fraction_inside(signed_distance_mm, ramp_mm):
     return np.clip(0.5 - signed_distance_mm / ramp_mm, 0.0, 1.0)
 
 
-def _paint_bone(volume, vertices, triangles, top, rng):
+def _paint_bone(volume, vertices, triangles, top, anatomy, rng):
     """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
@@ -228,8 +238,9 @@ def _paint_bone(volume, vertices, triangles, top, rng):
     signed[band] = signed_distance_to_mesh(volume.ijk_to_ras_points(np.argwhere(band) + low), vertices, triangles, rng)
 
     box_ras_z = volume.ijk_to_ras[2, 3] + (np.arange(low[2], high[2] + 1) * volume.ijk_to_ras[2, 2])
-    interior = np.where(box_ras_z[None, None, :] > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])
-    cortex = np.clip((CORTEX_THICKNESS_MM + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
+    cancellous = box_ras_z[None, None, :] > top - anatomy["cancellous_below_top_mm"]
+    interior = np.where(cancellous, HU["cancellous"], HU["marrow"])
+    cortex = np.clip((anatomy["cortex_mm"] + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
     bone_hu = cortex * HU["cortex"] + (1.0 - cortex) * interior
     tissue = _fraction_inside(signed - SOFT_TISSUE_MM, ramp)
     outside_hu = tissue * HU["soft_tissue"] + (1.0 - tissue) * HU["air"]
