@@ -56,6 +56,7 @@ def _arguments(folder, *extra):
         (["--method", "cr-icp"], {"method": "cr-icp"}),
         (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
         (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
+        ([], {}),  # the default method: cr-fused
     ],
 )
 def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra, options):
@@ -82,6 +83,14 @@ def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra
     assert len(document["sweep"]) == (21 if options.get("sweep") else 0)
     assert document["warnings"] == list(expected.warnings)
     assert f"TRE (eq. 11)      {expected.tre_mm:.2f} mm" in printed
+    if expected.method == "cr-fused":
+        assert document["method"] == "cr-fused"
+        weights = expected.fused_weights
+        assert document["fused_weights"]["marker_fle_mm"] == pytest.approx(weights.marker_fle_mm)
+        assert document["fused_weights"]["surface_sigma_mm"] == pytest.approx(weights.surface_sigma_mm)
+        np.testing.assert_allclose(document["predicted_tre_mm"], expected.predicted_tre_mm)
+        assert f"predicted TRE     {expected.predicted_tre_rms_mm:.2f} mm" in printed
+        assert f"FLE {weights.marker_fle_mm:.2f} mm" in printed
 
 
 @pytest.mark.parametrize(
@@ -140,6 +149,14 @@ def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
     assert list(document["tre_mm"]) == ["manual"]
     _check_demo_document(document, 3)
     assert "1.33 +- 0.27" in printed and "CR-RAMSICP (L by min TRE, paper)" in printed
+
+
+def test_demo_on_the_ilium(capsys):
+    assert main(["demo", "--bone", "right-ilium", "--image-source", "mesh", "--trials", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "right ilium of TotalSegmentator's example CT" in printed
+    assert "lateral face of the wing" in printed and "corners of a 40 mm cut" in printed
+    assert "cr-fused (markers + surface, target-free)" in printed and "measured / predicted RMS TRE" in printed
 
 
 def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):

@@ -1,4 +1,4 @@
-"""The paper's experiments, reduced: files and fields, statistics recomputed from the stored trials."""
+"""The paper's experiments, reduced: files and fields, statistics recomputed from the stored trials, bone by bone."""
 
 import json
 
@@ -13,7 +13,8 @@ from RAMSICPRegistrationLib.experiments.experiments import FIG9_LEVELS_MM, run_e
 @pytest.fixture(scope="module")
 def reproduction(tmp_path_factory):
     folder = tmp_path_factory.mktemp("reproduction")
-    arguments = ["reproduce", "--subjects", "2", "--trials", "3", "--image-source", "mesh", "--out", str(folder)]
+    # Two subjects: the first two bones in turn, a right tibia (a long bone) and a right ilium (a flat bone).
+    arguments = ["reproduce", "--subjects", "2", "--trials", "2", "--image-source", "mesh", "--out", str(folder)]
     assert main(arguments) == 0
     return folder, json.loads((folder / "results.json").read_text())
 
@@ -31,10 +32,15 @@ def test_all_files_are_written(reproduction):
         "## Fig. 9",
         "## Fig. 10a",
         "## Fig. 10b",
+        "## cr-fused against the targets set for it",
         "## Why our figures differ",
     ):
         assert heading in report
     assert "1.33 ± 0.27" in report and "0.25 mm RMS" in report
+    assert results["settings"]["bones"] == ["right-tibia", "right-ilium"]
+    for name, data in results["experiments"].items():
+        assert list(data["bones"]) == ["right-tibia", "right-ilium"], name
+    assert "| right-ilium | cr-fused |" in report
 
 
 def _summaries(node):
@@ -59,11 +65,11 @@ def test_every_summary_is_computed_from_its_trials(reproduction):
 
 def test_fig8_paired_tests_match_scipy_on_the_stored_trials(reproduction):
     _, results = reproduction
-    fig8 = results["experiments"]["fig8"]
+    fig8 = results["experiments"]["fig8"]["bones"]["right-ilium"]
     icp = np.array(fig8["manual_markers"]["CR-ICP"]["trials_mm"])
-    ramsicp = np.array(fig8["manual_markers"]["CR-RAMSICP (paper's L)"]["trials_mm"])
-    assert len(icp) == 2 * 3  # 2 subjects x 3 trials
-    test = fig8["paired_tests"]["CR-ICP vs CR-RAMSICP (paper's L)"]
+    ramsicp = np.array(fig8["manual_markers"]["cr-fused"]["trials_mm"])
+    assert len(icp) == 1 * 2  # 1 ilium subject x 2 trials
+    test = fig8["paired_tests"]["CR-ICP vs cr-fused"]
     assert test["mean_difference_mm"] == pytest.approx(np.mean(icp - ramsicp))
     if test["paired_t_p"] is not None:
         assert test["paired_t_p"] == pytest.approx(stats.ttest_rel(icp, ramsicp).pvalue)
@@ -72,26 +78,45 @@ def test_fig8_paired_tests_match_scipy_on_the_stored_trials(reproduction):
 
 def test_fig9_sets_the_cr_error_to_each_level(reproduction):
     _, results = reproduction
-    levels = results["experiments"]["fig9"]["levels"]
-    assert [float(level) for level in levels] == list(FIG9_LEVELS_MM)
-    for level, row in levels.items():
-        np.testing.assert_allclose(row["CR"]["trials_mm"], float(level), rtol=0.01)  # the CR's own TRE
+    for bone in ("right-tibia", "right-ilium"):
+        levels = results["experiments"]["fig9"]["bones"][bone]["levels"]
+        assert [float(level) for level in levels] == list(FIG9_LEVELS_MM)
+        for level, row in levels.items():
+            np.testing.assert_allclose(row["CR"]["trials_mm"], float(level), rtol=0.01)  # the CR's own TRE
 
 
 def test_fig7_sweeps_l_1_to_5_and_fig10_counts(reproduction):
     _, results = reproduction
-    for curve in results["experiments"]["fig7"]["combinations"].values():
-        assert curve["scales"] == pytest.approx(np.arange(1.0, 5.01, 0.2))
-        assert curve["mean_tre_mm"] == pytest.approx(np.mean(curve["trials_tre_mm"], axis=0))
-    assert list(results["experiments"]["fig10a"]["sub_areas"]) == [f"SA{i}" for i in range(1, 9)]
-    assert list(results["experiments"]["fig10b"]["point_counts"]) == ["8", "16", "24", "32"]
+    for bone in ("right-tibia", "right-ilium"):
+        for curve in results["experiments"]["fig7"]["bones"][bone]["combinations"].values():
+            assert curve["scales"] == pytest.approx(np.arange(1.0, 5.01, 0.2))
+            assert curve["mean_tre_mm"] == pytest.approx(np.mean(curve["trials_tre_mm"], axis=0))
+        assert list(results["experiments"]["fig10a"]["bones"][bone]["sub_areas"]) == [f"SA{i}" for i in range(1, 9)]
+        assert list(results["experiments"]["fig10b"]["bones"][bone]["point_counts"]) == ["8", "16", "24", "32"]
+
+
+def test_fused_checks_and_calibration_follow_from_the_stored_trials(reproduction):
+    from RAMSICPRegistrationLib.experiments.experiment_report import fused_checks
+
+    _, results = reproduction
+    fig8 = results["experiments"]["fig8"]["bones"]["right-tibia"]
+    measured = np.array(fig8["manual_markers"]["cr-fused"]["trials_mm"])
+    predicted = np.array(fig8["fused_prediction"]["manual_markers"]["predicted"]["trials_mm"])
+    target_noise = 0.25 / np.sqrt(10)  # each target is the mean of 10 touches of 0.25 mm RMS
+    calibration = np.sqrt(np.mean(measured**2)) / np.sqrt(np.mean(predicted**2) + target_noise**2)
+    assert fig8["fused_prediction"]["manual_markers"]["calibration"] == pytest.approx(calibration)
+    checks = {what: (met, figures) for what, met, figures in fused_checks(results["experiments"])}
+    ratio_check = checks["Fig. 8, right-tibia, markers by hand: cr-fused <= 0.75 x CR-ICP"]
+    icp = np.mean(fig8["manual_markers"]["CR-ICP"]["trials_mm"])
+    assert ratio_check[0] == (measured.mean() <= 0.75 * icp)
+    assert any(what.startswith("Fig. 9, right-ilium: cr-fused never more than 0.05 mm worse") for what in checks)
 
 
 def test_fig8_on_ct_phantoms_uses_the_automatic_centres():
     results = run_experiments(["fig8"], trials=2, subjects=1, image_source="ct")
     subject = results["settings"]["subjects"][0]
     assert subject["automatic_marker_error_max_mm"] < 0.1 and abs(subject["ipc_offset_mm"]) < 0.05
-    automatic = results["experiments"]["fig8"]["automatic_markers"]["CR"]
+    automatic = results["experiments"]["fig8"]["bones"]["right-tibia"]["automatic_markers"]["CR"]
     assert automatic["mean"] < 0.3  # CR on centres found in the CT, far below the manual 1 mm placement error
 
 

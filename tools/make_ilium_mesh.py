@@ -11,7 +11,9 @@ iterations; it removes the voxel steps and keeps the volume) and one Loop subdiv
 mesh). Measured on the result: median 0.36 mm and 95th percentile 1.0 mm from the mask's own iso-surface
 (a third of a voxel), volume 370.6 ml (the mask: 375.6 ml).
 
-Run: python tools/make_ilium_mesh.py PATH/TO/hip_right.nii.gz RAMSICPRegistration/RAMSICPRegistrationLib/simulation/data/TotalSegmentator_hip_right_smooth.stl
+Run, with OUTPUT ``RAMSICPRegistration/RAMSICPRegistrationLib/simulation/data/TotalSegmentator_hip_right_smooth.stl``:
+
+    python tools/make_ilium_mesh.py PATH/TO/hip_right.nii.gz OUTPUT
 """
 
 import argparse

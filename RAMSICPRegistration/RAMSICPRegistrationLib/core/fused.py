@@ -70,11 +70,13 @@ VARIANCES = ("fixed", "surface", "vce")
 FUSED_DEFAULTS = {
     "solver": "point-to-plane",
     "correspondence": "closest",
-    "loss": "least-squares",
+    "loss": "huber",
     "variance": "surface",
 }
 #: Re-estimations of the weights after convergence, at most.
 MAX_REESTIMATIONS = 5
+#: A fit whose probe points end this many times their noise from the surface is started again (``restarts``).
+RESTART_RATIO = 3.0
 
 
 @dataclass(frozen=True)
@@ -147,8 +149,11 @@ class FusedFit:
         centre_mm: (3,) the image point the rotations of ``covariance`` are taken about.
         iterations: Gauss-Newton (or SVD) iterations run; converged: False when the limit stopped them.
         matched_indices: (N,) IPC index matched to each probe point at the end.
-        surface_residuals_mm: (N,) signed normal distance of each registered probe point to its match.
+        surface_residuals_mm: (N,) normal distance of each registered probe point to its match.
+        surface_dof: how many of the 6 pose parameters the probe points fix, ``trace(C H_surface)`` (0 to 6);
+            the markers fix the rest.
         weights: the FusedWeights used (after any re-estimation of the surface noise).
+        starts: 1, or 13 when the first fit ended off the surface and the fit was started again (``restarts``).
     """
 
     transform: np.ndarray
@@ -158,7 +163,9 @@ class FusedFit:
     converged: bool
     matched_indices: np.ndarray
     surface_residuals_mm: np.ndarray
+    surface_dof: float
     weights: FusedWeights
+    starts: int = 1
 
     def predicted_errors_mm(self, points_image):
         """Predicted RMS registration error (mm) at each (T, 3) image point, from the covariance (F4)."""
@@ -185,6 +192,7 @@ def fused_fit(
     loss=FUSED_DEFAULTS["loss"],
     scale=5.0,
     variance=FUSED_DEFAULTS["variance"],
+    restarts=True,
     max_iterations=DEFAULT_MAX_ITERATIONS,
     tolerance_mm=DEFAULT_TOLERANCE_MM,
 ):
@@ -200,6 +208,8 @@ def fused_fit(
         scale: L of RAMSICP's ranges when ``correspondence`` is 'ramsicp'.
         variance: 'fixed' (the weights as given), 'surface' (the surface noise re-estimated from the residuals,
             F3) or 'vce' (both, by variance-component estimation).
+        restarts: when the fit ends with the probe points ``RESTART_RATIO`` times farther from the surface than
+            their noise, start again from 12 poses around the CR (its uncertainty, +-2 sd) and keep the lowest F1.
         tolerance_mm: stop when no probe point or marker moves by more than this in an iteration.
 
     Returns:
@@ -218,41 +228,93 @@ def fused_fit(
         def match(moving):
             return index.nearest(moving)[1]
 
+    data = (index, match, ppc, markers_patient, markers_image, loss)
+    options = (solver, variance, max_iterations, tolerance_mm)
+    fit = _fit_from(np.array(initial_transform, dtype=np.float64), weights, data, options)
+    if restarts and weights.marker_weight > 0 and weights.surface_weight > 0:
+        residual = float(np.sqrt(np.mean(fit.surface_residuals_mm**2)))
+        if residual > RESTART_RATIO * weights.surface_sigma_mm:
+            # The fit ended off the surface: a local minimum of F1 far from the CR's error. Start again from
+            # both ends of each axis of the CR's uncertainty and keep the lowest F1 (at the first weights).
+            candidates = [fit] + [_fit_from(start, weights, data, options) for start in _starts(data, weights)]
+            best = int(np.argmin([_objective(candidate.transform, weights, data) for candidate in candidates]))
+            fit = replace(candidates[best], starts=len(candidates))
+    return fit
+
+
+def _fit_from(transform, weights, data, options):
+    """Gauss-Newton (or SVD) iterations of F1 from one start; the weights re-estimated at convergence (F2, F3)."""
+    index, match, ppc, markers_patient, markers_image, loss = data
+    solver, variance, max_iterations, tolerance_mm = options
     prior_sigma = weights.surface_sigma_mm
     sigma_reliable = len(ppc) >= MIN_POINTS_FOR_SIGMA and np.isfinite(prior_sigma)
     reestimations = MAX_REESTIMATIONS if variance != "fixed" else 0
-    transform = np.array(initial_transform, dtype=np.float64)
     converged = False
     iterations = 0
+    damping, last_move = 1.0, np.inf
     while iterations < max_iterations:
         iterations += 1
         state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, loss)
         if solver == "point-to-point":
             step = _procrustes_step(state, markers_image, weights.marker_weight)
         else:  # Gauss-Newton on F4's normal equations
-            step = _motion(-np.linalg.lstsq(state.information, state.gradient, rcond=1e-12)[0], state.centre)
+            delta = -np.linalg.lstsq(state.information, state.gradient, rcond=1e-12)[0]
+            step = _motion(damping * delta, state.centre)
         transform = step @ transform
-        if _largest_move(step, state.moved_points, markers_image) >= tolerance_mm:
+        move = _largest_move(step, state.moved_points, markers_image)
+        if iterations > 2 and move > 0.5 * last_move:
+            # Gauss-Newton shrinks its steps many times over when it converges; a step as large as the last means
+            # a probe point is flipping between two IPC points: halve the steps from now on, so the cycle settles.
+            damping /= 2.0
+        last_move = move
+        if move >= tolerance_mm:
             continue
         if reestimations:
             reestimations -= 1
             updated = _reestimated(state, weights, variance, sigma_reliable, prior_sigma)
             if updated is not None:
-                weights = updated
+                weights, damping, last_move = updated, 1.0, np.inf
                 continue
         converged = True
         break
     state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, loss)
+    covariance = _invert_information(state.information)
+    surface_dof = float(np.trace(covariance @ state.surface_information)) if np.isfinite(covariance).all() else 6.0
     return FusedFit(
         transform=transform,
-        covariance=_invert_information(state.information),
+        covariance=covariance,
         centre_mm=state.centre,
         iterations=iterations,
         converged=converged,
         matched_indices=state.matched,
         surface_residuals_mm=np.abs(state.surface_residuals),
+        surface_dof=surface_dof,
         weights=weights,
     )
+
+
+def _objective(transform, weights, data):
+    """F1 at a pose, with its closest points and these weights."""
+    index, match, ppc, markers_patient, markers_image, loss = data
+    state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, loss)
+    return weights.marker_weight * float(np.sum(state.marker_residuals**2)) + float(
+        np.sum(state.surface_weights * state.surface_residuals**2)
+    )
+
+
+def _starts(data, weights):
+    """Starts at +-2 standard deviations along each eigen-motion of the CR's pose covariance (markers alone)."""
+    _, _, _, markers_patient, markers_image, _ = data
+    coarse = rigid_procrustes(markers_patient, markers_image)
+    moved = apply_transform(coarse, markers_patient)
+    centre = moved.mean(axis=0)
+    information, _ = _marker_equations(moved - centre, moved - markers_image)
+    variances, motions = np.linalg.eigh(np.linalg.inv(weights.marker_weight * information))
+    return [
+        _motion(sign * 2.0 * np.sqrt(variance) * motion, centre) @ coarse
+        for variance, motion in zip(variances, motions.T)
+        for sign in (-1.0, 1.0)
+    ]
 
 
 class _State:
@@ -351,9 +413,9 @@ def _point_jacobians(offsets):
     """(T, 3, 6) Jacobian of a point's displacement under (w, t) about the centre: ``[-[y - c]_x, I]`` (F4)."""
     jacobians = np.zeros((len(offsets), 3, 6))
     x, y, z = offsets[:, 0], offsets[:, 1], offsets[:, 2]
-    jacobians[:, 0, 1], jacobians[:, 0, 2] = -z, y
-    jacobians[:, 1, 0], jacobians[:, 1, 2] = z, -x
-    jacobians[:, 2, 0], jacobians[:, 2, 1] = -y, x
+    jacobians[:, 0, 1], jacobians[:, 0, 2] = z, -y
+    jacobians[:, 1, 0], jacobians[:, 1, 2] = -z, x
+    jacobians[:, 2, 0], jacobians[:, 2, 1] = y, -x
     jacobians[:, :, 3:] = np.eye(3)
     return jacobians
 

@@ -7,9 +7,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
-from .fused import FusedWeights, fused_fit, marker_fle, predicted_errors, surface_sigma
+from .fused import FLE_FLOOR_MM, FusedWeights, fused_fit, marker_fle, predicted_errors, surface_sigma
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
@@ -41,10 +42,16 @@ PLATEAU_TOLERANCE = 0.005
 MARKER_FRE_LIMIT_MM = 2.0
 #: A registered probe point farther than this from the surface (mm) and 3x the median is reported.
 OUTLIER_LIMIT_MM = 1.0
-#: cr-fused: a marker moved from its image position by more than this many times the FLE is reported.
-MARKER_DISAGREEMENT_RATIO = 3.0
+#: cr-fused: markers moved off the CR further than their scatter explains at this significance are reported.
+DISAGREEMENT_P = 0.01
 #: cr-fused: probe points that fit the surface this many times worse than the prior noise are reported.
 SURFACE_NOISE_RATIO = 2.0
+#: How cr-fused's own warnings begin (for counting them).
+FUSED_WARNINGS = (
+    "The markers and the probe points disagree",
+    "The probe points fit the surface worse",
+    "cr-fused stopped",
+)
 
 
 @dataclass(frozen=True)
@@ -188,7 +195,7 @@ def register(
     if method == "cr-fused":
         fused = _fused(index, ppc, coarse, markers_patient, markers_image, fle_mm, probe_noise_mm)
         fine = fused
-        warnings += _fused_warnings(fused, np.asarray(markers_patient, float), np.asarray(markers_image, float))
+        warnings += _fused_warnings(fused, coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
     elif method == "cr-icp":
         fine = icp(index, ppc, coarse.transform)
     elif method == "cr-ramsicp":
@@ -281,17 +288,28 @@ def _fused(index, ppc, coarse, markers_patient, markers_image, fle_mm, probe_noi
     )
 
 
-def _fused_warnings(fused, markers_patient, markers_image):
-    """Plain-words warnings when the markers and the probe points of a fused fit do not agree with their noise."""
+def _fused_warnings(fused, coarse, markers_patient, markers_image):
+    """Plain-words warnings when the markers and the probe points of a fused fit do not agree within their noise.
+
+    The markers: the fused pose may move them off the CR only as far as their noise allows. With ``S`` the sum of
+    squared marker residuals, ``(S_fused - S_cr) / p`` over ``S_cr / (3K - 6)`` follows an F distribution with
+    ``p`` (the pose parameters the probe points fix) and ``3K - 6`` degrees of freedom; the CR's own residuals
+    count for at least the FLE floor's.
+    """
     warnings = []
     weights = fused.weights
+    count = len(markers_patient)
     moved = np.linalg.norm(apply_transform(fused.transform, markers_patient) - markers_image, axis=1)
-    worst = int(np.argmax(moved))
-    if moved[worst] > MARKER_DISAGREEMENT_RATIO * weights.marker_fle_mm:
+    cr_sum = max(float(np.sum(coarse.residuals_mm**2)), (3 * count - 6) * FLE_FLOOR_MM**2 / 3.0)
+    extra = max(fused.surface_dof, 0.5)
+    ratio = (float(np.sum(moved**2)) - cr_sum) / extra / (cr_sum / (3 * count - 6))
+    if ratio > stats.f.ppf(1.0 - DISAGREEMENT_P, extra, 3 * count - 6):
+        worst = int(np.argmax(moved))
         warnings.append(
             f"The markers and the probe points disagree: the fused pose puts marker {worst} {moved[worst]:.2f} mm "
-            f"from its image position, over {MARKER_DISAGREEMENT_RATIO:g} times the marker error "
-            f"({weights.marker_fle_mm:.2f} mm). Check that marker's centre and the probe points."
+            f"from its image position, more than the markers' own scatter (FRE {coarse.fre_mm:.2f} mm) explains "
+            f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
+            "matched to the wrong wall of a thin bone does this."
         )
     prior = surface_sigma(weights.probe_noise_mm, weights.ipc_spacing_mm)
     if weights.surface_sigma_mm > SURFACE_NOISE_RATIO * prior:

@@ -32,6 +32,14 @@ ANATOMIES = ("long-bone", "flat-bone")
 CUT_BELOW_TOP_MM = {"long-bone": 40.0, "flat-bone": 30.0}
 #: Length of the planned cut across the wing (mm); its ends on both surfaces are the targets.
 PLATE_CUT_LENGTH_MM = 40.0
+#: Where the probe points and the targets are, in words, by anatomy (for reports).
+LAYOUT_WORDS = {
+    "long-bone": {"probe": "the smooth medial face of the shaft", "targets": "the ends of a high tibial osteotomy cut"},
+    "flat-bone": {
+        "probe": "the smooth lateral face of the wing",
+        "targets": f"the corners of a {PLATE_CUT_LENGTH_MM:g} mm cut across the upper wing",
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -99,13 +107,18 @@ class VirtualPatient:
             targets = _cut_end_points(ipc, cut_height, -lateral, anterior)
             sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, -lateral, anterior)
             anchor = _section_centre(ipc, cut_height - 60.0)
+            facing = anterior
         else:
             face = _face_normal(dense, dense_normals, cut_height, lateral)
             targets = _plate_cut_end_points(dense, dense_normals, cut_height, face)
             sub_areas = _plate_face_sub_areas(dense, dense_normals, cut_height, face, targets)
-            anchor = np.vstack(sub_areas).mean(axis=0)  # on the face: the wing's section centre is too far medial
+            # On a bracket out of the middle of the face, its marker plane facing the same way (and the camera).
+            anchor = np.vstack(sub_areas).mean(axis=0)
+            along = _along_face(face)
+            facing = np.cross(along, (0.0, 0.0, 1.0))  # the face's normal made horizontal: the tool stands upright
+            lateral, anterior = face, along if along[1] > 0 else -along
         reference_to_image = _reference_body_pose(
-            markers_reference, anchor, lateral, anterior, bracket_offset_mm, turn_deg
+            markers_reference, anchor, lateral, anterior, bracket_offset_mm, turn_deg, facing
         )
         return cls(
             ipc=ipc,
@@ -270,13 +283,13 @@ def _plate_face_sub_areas(points, normals, cut_height, face, targets, radius_mm=
     return tuple(areas)
 
 
-def _reference_body_pose(markers, bone_centre, lateral, anterior, offset_mm, turn_deg):
-    """ReferenceToImage of a reference body on a bracket lateral-anterior of the bone, facing anterior.
+def _reference_body_pose(markers, bone_centre, lateral, anterior, offset_mm, turn_deg, facing):
+    """ReferenceToImage of a reference body on a bracket lateral-anterior of the bone.
 
-    The tool's marker plane normal (+x of NDI passive tools) faces anterior, towards the camera, turned
-    ``turn_deg`` about the bone's axis; its long axis (+z) runs along the bone.
+    The tool's marker plane normal (+x of NDI passive tools) points along ``facing`` (horizontal), towards the
+    camera, turned ``turn_deg`` about the bone's axis; its long axis (+z) runs along the bone.
     """
-    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(turn_deg)) @ anterior
+    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(turn_deg)) @ facing
     z_axis = np.array([0.0, 0.0, 1.0])
     rotation = np.column_stack((x_axis, np.cross(z_axis, x_axis), z_axis))
     centre = bone_centre + offset_mm[0] * lateral + offset_mm[1] * anterior
