@@ -25,7 +25,8 @@ class SurfaceIndex:
         self.points = as_points(points, name, min_count=3)
         # An unbalanced tree without compacted nodes builds about twice as fast and answers as fast here.
         self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
-        self._normals = None  # (M, 3), filled point by point as normals are asked for
+        self._normals = None  # (M, 3), filled point by point as normals are asked for (``_normal_known``)
+        self._normal_known = None
         logger.debug("KD-tree built over %d IPC points", len(self.points))
 
     def __len__(self):
@@ -57,15 +58,15 @@ class SurfaceIndex:
         The sign of each normal is arbitrary; only the line it spans is meaningful.
         """
         indices = np.asarray(indices, dtype=np.intp)
-        if self._normals is None:
-            self._normals = np.full((len(self.points), 3), np.nan)
-        normals = self._normals[indices]
-        missing = np.isnan(normals[:, 0])
+        if self._normals is None:  # allocated untouched: only the points asked for are ever written or read
+            self._normals = np.empty((len(self.points), 3))
+            self._normal_known = np.zeros(len(self.points), dtype=bool)
+        missing = ~self._normal_known[indices]
         if missing.any():
             new = np.unique(indices[missing])
             self._normals[new] = self._pca_normals(new)
-            normals = self._normals[indices]
-        return normals
+            self._normal_known[new] = True
+        return self._normals[indices]
 
     def _pca_normals(self, indices):
         neighbour_count = min(NORMAL_NEIGHBOURS, len(self.points))
