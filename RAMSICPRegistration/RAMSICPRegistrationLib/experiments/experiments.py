@@ -218,9 +218,17 @@ def _fused_prediction(results):
     measured = np.array([r.fused_mm for r in results])
     predicted = np.array([r.fused_predicted_mm for r in results])
     target_noise = ERROR_MODEL["probe_noise_mm"] / np.sqrt(ERROR_MODEL["target_touches"])
+
+    def calibration(rows):
+        return np.sqrt(np.mean(measured[rows] ** 2)) / np.sqrt(np.mean(predicted[rows] ** 2) + target_noise**2)
+
+    # How sure the ratio itself is over this few trials: a bootstrap over the trials (fixed seed, 2000 draws).
+    draws = np.random.default_rng(0).integers(0, len(measured), size=(2000, len(measured)))
+    resampled = np.sort([calibration(rows) for rows in draws])
     return {
         "predicted": summarise(predicted),
-        "calibration": float(np.sqrt(np.mean(measured**2)) / np.sqrt(np.mean(predicted**2) + target_noise**2)),
+        "calibration": float(calibration(np.arange(len(measured)))),
+        "calibration_90_percent": [float(resampled[100]), float(resampled[1899])],
         "warned": int(sum(r.fused_warned for r in results)),
     }
 
