@@ -49,11 +49,7 @@ def plot_fig7(data, path):
             axes.axhline(curve["fused"]["mean"], color=colour, linestyle=(0, (1, 3)), linewidth=1.2)
         axes.axhline(paper_ramsicp, color="black", linestyle="--", linewidth=0.8)
         axes.axhline(paper_icp, color="black", linestyle="-.", linewidth=0.8)
-        axes.set_title(f"{_bone(bone)} (n = {count} trials per combination)", fontsize=9)
-        axes.set_xlabel("scale factor L")
-        axes.set_ylabel("TRE (mm)")
-        axes.set_ylim(bottom=0.0)
-        axes.grid(alpha=0.3)
+        _label(axes, f"{_bone(bone)} (n = {count} trials per combination)", "scale factor L")
     handles, labels = panels[0].get_legend_handles_labels()
     handles += [
         plt.Line2D([], [], color="grey", linestyle=(0, (1, 3)), linewidth=1.2),
@@ -136,23 +132,14 @@ def plot_fig9(data, path):
         levels = np.array([float(level) for level in bone_data["levels"]])
         rows = list(bone_data["levels"].values())
         axes.plot(levels, levels, color=COLOURS["CR"], linewidth=0.8, label="CR (its TRE is the x value)")
-        for number, method in enumerate(methods):
-            mean = np.array([row[method]["mean"] for row in rows])
-            sd = np.array([row[method]["sd"] for row in rows])
-            offset = (number - (len(methods) - 1) / 2) * 0.07
-            axes.errorbar(
-                levels + offset, mean, yerr=sd, marker="o", markersize=3, capsize=2, linewidth=1,
-                color=COLOURS[method], label=method,
-            )  # fmt: skip
+        _side_by_side(axes, levels, rows, methods, spacing=0.07)
         axes.axhline(1.0, color="black", linestyle="--", linewidth=0.8)
         axes.axvspan(levels[0] - 0.35, goal + 0.25, color=PAPER_SPAN, zorder=0)
         counts = sorted({row["CR-ICP"]["n"] for row in rows})
-        axes.set_title(f"{_bone(bone)} (n = {', '.join(map(str, counts))} trials per point)", fontsize=9)
-        axes.set_xlabel("CR error (TRE of the coarse registration, mm)")
-        axes.set_ylabel("TRE (mm)")
+        title = f"{_bone(bone)} (n = {', '.join(map(str, counts))} trials per point)"
+        _label(axes, title, "CR error (TRE of the coarse registration, mm)")
         axes.set_xlim(levels[0] - 0.35, levels[-1] + 0.35)
         axes.set_ylim(0.0, max(levels[-1] + 0.5, axes.get_ylim()[1]))
-        axes.grid(alpha=0.3)
     from matplotlib.patches import Patch
 
     handles, labels = panels[0].get_legend_handles_labels()
@@ -172,20 +159,10 @@ def plot_fig10b(data, path):
     for axes, (bone, bone_data) in zip(panels, data["bones"].items()):
         counts = np.array([int(count) for count in bone_data["point_counts"]])
         rows = list(bone_data["point_counts"].values())
-        for number, method in enumerate(COLOURS):
-            mean = np.array([row[method]["mean"] for row in rows])
-            sd = np.array([row[method]["sd"] for row in rows])
-            offset = (number - (len(COLOURS) - 1) / 2) * 0.8
-            axes.errorbar(
-                counts + offset, mean, yerr=sd, marker="o", markersize=3, capsize=2, linewidth=1,
-                color=COLOURS[method], label=method,
-            )  # fmt: skip
+        _side_by_side(axes, counts, rows, list(COLOURS), spacing=0.8)
         axes.set_xticks(counts)
-        axes.set_title(f"{_bone(bone)} (n = {rows[0]['CR']['n']} trials per point)", fontsize=9)
-        axes.set_xlabel("probe points (1 to 4 in each of the 8 sub-areas)")
-        axes.set_ylabel("TRE (mm)")
-        axes.set_ylim(bottom=0.0)
-        axes.grid(alpha=0.3)
+        title = f"{_bone(bone)} (n = {rows[0]['CR']['n']} trials per point)"
+        _label(axes, title, "probe points (1 to 4 in each of the 8 sub-areas)")
     handles, labels = panels[0].get_legend_handles_labels()
     _finish(
         plt,
@@ -199,6 +176,18 @@ def plot_fig10b(data, path):
 
 
 PLOTS = {"fig7": plot_fig7, "fig8": plot_fig8, "fig9": plot_fig9, "fig10a": plot_fig10a, "fig10b": plot_fig10b}
+
+
+def _side_by_side(axes, x, rows, methods, spacing):
+    """Mean +- sd of each method over ``rows`` against ``x``, each series shifted by ``spacing`` to stay visible."""
+    for number, method in enumerate(methods):
+        mean = np.array([row[method]["mean"] for row in rows])
+        sd = np.array([row[method]["sd"] for row in rows])
+        offset = (number - (len(methods) - 1) / 2) * spacing
+        axes.errorbar(
+            x + offset, mean, yerr=sd, marker="o", markersize=3, capsize=2, linewidth=1, color=COLOURS[method],
+            label=method,
+        )  # fmt: skip
 
 
 def _grouped_bars(data, key, path, title, xlabel):
@@ -222,13 +211,18 @@ def _grouped_bars(data, key, path, title, xlabel):
         axes.set_xticks(positions)
         axes.set_xticklabels(list(groups), fontsize=8)
         first = next(iter(groups.values()))
-        axes.set_title(f"{_bone(bone)} (n = {first['CR']['n']} trials per sub-area)", fontsize=9)
-        axes.set_xlabel(xlabel)
-        axes.set_ylabel("TRE (mm)")
-        axes.set_ylim(bottom=0.0)
-        axes.grid(alpha=0.3, axis="y")
+        _label(axes, f"{_bone(bone)} (n = {first['CR']['n']} trials per sub-area)", xlabel, grid_axis="y")
     handles, labels = panels[0].get_legend_handles_labels()
     _finish(plt, figure, path, title, handles, labels, SD_NOTE)
+
+
+def _label(axes, title, xlabel, grid_axis="both"):
+    """A panel's title, axis labels (TRE in mm from 0) and grid."""
+    axes.set_title(title, fontsize=9)
+    axes.set_xlabel(xlabel)
+    axes.set_ylabel("TRE (mm)")
+    axes.set_ylim(bottom=0.0)
+    axes.grid(alpha=0.3, axis=grid_axis)
 
 
 def _pyplot():
