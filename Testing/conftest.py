@@ -35,6 +35,14 @@ def tibia_patient():
 
 
 @pytest.fixture(scope="session")
+def ilium():
+    """The right ilium's virtual patient (probe points on the lateral face of the wing), with its mesh."""
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+
+    return shipped_patient("right-ilium")
+
+
+@pytest.fixture(scope="session")
 def tibia_index(tibia_patient):
     from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 

@@ -81,14 +81,6 @@ def test_marker_error_calibration_gives_the_requested_cr_tre(tibia_patient):
     assert np.mean(tres) == pytest.approx(1.33, rel=0.04)
 
 
-@pytest.fixture(scope="module")
-def ilium():
-    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
-
-    patient, vertices, triangles = shipped_patient("right-ilium")
-    return patient, vertices, triangles
-
-
 def test_geometry_of_the_ilium_patient(ilium):
     from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 

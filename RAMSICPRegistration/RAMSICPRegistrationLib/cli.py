@@ -95,7 +95,8 @@ def _parser():
     reg.add_argument(
         "--fle",
         type=float,
-        help="marker localisation error (mm) for the predicted TRE (default: estimated from the FRE)",
+        help="marker localisation error (mm) for the predicted TRE and cr-fused's marker weights "
+        "(default: estimated from the FRE)",
     )
     reg.add_argument(
         "--untagged-space",

@@ -314,12 +314,14 @@ def _fit_from(transform, weights, data, options):
 
 
 def _objective(transform, weights, data):
-    """F1 at a pose, with its closest points and these weights."""
+    """F1 at a pose, with its closest points and these weights (Huber's rho itself, not its reweighting)."""
     index, match, ppc, markers_patient, markers_image, loss = data
-    state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, loss)
-    return weights.marker_weight * float(np.sum(state.marker_residuals**2)) + float(
-        np.sum(state.surface_weights * state.surface_residuals**2)
-    )
+    state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, "least-squares")
+    normalised = np.abs(state.surface_residuals) / weights.surface_sigma_mm
+    if loss == "huber":
+        beyond = normalised > HUBER_THRESHOLD
+        normalised[beyond] = np.sqrt(2.0 * HUBER_THRESHOLD * normalised[beyond] - HUBER_THRESHOLD**2)
+    return weights.marker_weight * float(np.sum(state.marker_residuals**2)) + float(np.sum(normalised**2))
 
 
 def _starts(data, weights):

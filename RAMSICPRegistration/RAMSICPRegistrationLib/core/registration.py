@@ -10,7 +10,15 @@ import numpy as np
 from scipy import stats
 
 from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
-from .fused import FLE_FLOOR_MM, FusedWeights, fused_fit, marker_fle, predicted_errors, surface_sigma
+from .fused import (
+    FLE_FLOOR_MM,
+    RESTART_RATIO,
+    FusedWeights,
+    fused_fit,
+    marker_fle,
+    predicted_errors,
+    surface_sigma,
+)
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
@@ -51,6 +59,7 @@ FUSED_WARNINGS = (
     "The markers and the probe points disagree",
     "The probe points fit the surface worse",
     "cr-fused stopped",
+    "cr-fused started again",
 )
 
 
@@ -310,6 +319,12 @@ def _fused_warnings(fused, coarse, markers_patient, markers_image):
             f"from its image position, more than the markers' own scatter (FRE {coarse.fre_mm:.2f} mm) explains "
             f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
             "matched to the wrong wall of a thin bone does this."
+        )
+    if fused.starts > 1:
+        warnings.append(
+            f"cr-fused started again: its first fit ended with the probe points more than {RESTART_RATIO:g} times "
+            f"their noise from the surface, so it was run from {fused.starts - 1} poses around the CR and the best "
+            "was kept. Check the CR (marker order and centres) and that the probe points were touched on this bone."
         )
     prior = surface_sigma(weights.probe_noise_mm, weights.ipc_spacing_mm)
     if weights.surface_sigma_mm > SURFACE_NOISE_RATIO * prior:
