@@ -13,31 +13,31 @@ from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 DATA_DIR = Path(__file__).resolve().parent / "data"
 
 #: Bone meshes by short name: file, the image direction (RAS) that is lateral for that side, the kind of bone
-#: (``VirtualPatient`` places the probe points and the cut by it) and where the mesh comes from.
+#: (``VirtualPatient`` places the probe points and the cut by it) and where the mesh comes from, with its licence.
 BONES = {
     "right-tibia": {
         "file": "VHF_Right_Bone_Tibia_smooth.stl",
         "lateral": (1.0, 0.0, 0.0),
         "anatomy": "long-bone",
-        "source": "Visible Human Female",
+        "source": "the Visible Human Female (CC BY 4.0)",
     },
     "left-tibia": {
         "file": "VHF_Left_Bone_Tibia_smooth.stl",
         "lateral": (-1.0, 0.0, 0.0),
         "anatomy": "long-bone",
-        "source": "Visible Human Female",
+        "source": "the Visible Human Female (CC BY 4.0)",
     },
     "right-fibula": {
         "file": "VHF_Right_Bone_Fibula_smooth.stl",
         "lateral": (1.0, 0.0, 0.0),
         "anatomy": "long-bone",
-        "source": "Visible Human Female",
+        "source": "the Visible Human Female (CC BY 4.0)",
     },
     "right-ilium": {
         "file": "TotalSegmentator_hip_right_smooth.stl",
         "lateral": (1.0, 0.0, 0.0),
         "anatomy": "flat-bone",
-        "source": "TotalSegmentator's example CT",
+        "source": "TotalSegmentator's example CT (Apache-2.0)",
     },
 }
 
