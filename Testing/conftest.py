@@ -37,6 +37,14 @@ def tibia_patient():
 
 
 @pytest.fixture(scope="session")
+def ilium():
+    """The right ilium's virtual patient (probe points on the lateral face of the wing), with its mesh."""
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+
+    return shipped_patient("right-ilium")
+
+
+@pytest.fixture(scope="session")
 def tibia_index(tibia_patient):
     from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 
@@ -140,7 +148,7 @@ def register_every_way(index, data, markers_image=None):
 
     Returns the TRE (mm, eq. 11) under 'CR', 'CR-ICP', 'fixed L = 5' (a single RAMSICP run at L = 5),
     'rms-plateau' (a sweep chosen by that policy, its L under 'rms-plateau L'), 'sweep' (the TRE at every L of the
-    sweep, (21,)) and "paper's L" (the sweep's minimum, its L under "paper's L value").
+    sweep, (21,)), "paper's L" (the sweep's minimum, its L under "paper's L value") and 'cr-fused'.
     """
     from RAMSICPRegistrationLib.core.registration import register
 
@@ -161,4 +169,5 @@ def register_every_way(index, data, markers_image=None):
         "sweep": sweep,
         "paper's L": float(sweep.min()),
         "paper's L value": plateau.sweep[int(np.argmin(sweep))].scale,
+        "cr-fused": again("cr-fused").tre_mm,
     }

@@ -26,6 +26,7 @@ DEMO_ROWS = {
     "CR-RAMSICP (L by min TRE, paper)": ("paper's L", "CR-RAMSICP"),
     "CR-RAMSICP (rms-plateau, target-free)": ("rms-plateau", None),
     "CR-RAMSICP (fixed L = 5)": ("fixed L = 5", None),
+    "cr-fused (markers + surface, target-free)": ("cr-fused", None),
 }
 
 
@@ -71,6 +72,7 @@ def _arguments(folder, *extra):
         (["--method", "cr-icp"], {"method": "cr-icp"}),
         (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
         (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
+        ([], {}),  # the default method: cr-fused
     ],
 )
 def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra, options):
@@ -97,6 +99,14 @@ def test_register_json_matches_python_result(case_files, tmp_path, capsys, extra
     assert len(document["sweep"]) == (21 if options.get("sweep") else 0)
     assert document["warnings"] == list(expected.warnings)
     assert f"TRE (eq. 11)      {expected.tre_mm:.2f} mm" in printed
+    if expected.method == "cr-fused":
+        assert document["method"] == "cr-fused"
+        weights = expected.fused_weights
+        assert document["fused_weights"]["marker_fle_mm"] == pytest.approx(weights.marker_fle_mm)
+        assert document["fused_weights"]["surface_sigma_mm"] == pytest.approx(weights.surface_sigma_mm)
+        np.testing.assert_allclose(document["predicted_tre_mm"], expected.predicted_tre_mm)
+        assert f"predicted TRE     {expected.predicted_tre_rms_mm:.2f} mm" in printed
+        assert f"FLE {weights.marker_fle_mm:.2f} mm" in printed
 
 
 @pytest.mark.parametrize(
@@ -155,9 +165,12 @@ def _check_demo_document(document, trials, registered):
 
 
 def _printed_rows(printed):
-    """The demo's table as printed: label -> (mean, sd, paper mean, paper sd), numbers as text, None if blank."""
-    pattern = re.compile(r"^\s+(\S.*?)\s+(\d+\.\d\d) \+- (\d+\.\d\d)\s+(?:(\d+\.\d\d) \+- (\d+\.\d\d))?$")
-    return {match[1]: match.groups()[1:] for match in map(pattern.match, printed.splitlines()) if match}
+    """The demo's table as printed: label -> (mean, sd, paper mean, paper sd), numbers as text, None if blank (the
+    predicted column of cr-fused's row is left out)."""
+    pattern = re.compile(
+        r"^\s+(\S.*?)\s+(\d+\.\d\d) \+- (\d+\.\d\d)(?:\s+(\d+\.\d\d) \+- (\d+\.\d\d))?(?:\s+\d+\.\d\d)?\s*$"
+    )
+    return {match[1]: match.groups()[1:5] for match in map(pattern.match, printed.splitlines()) if match}
 
 
 def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
@@ -184,6 +197,14 @@ def test_demo_on_the_mesh_reports_trials_and_summary(tmp_path, capsys):
             f"{np.std(values, ddof=1):.2f}",
             *((f"{paper[0]:.2f}", f"{paper[1]:.2f}") if paper else (None, None)),
         )
+
+
+def test_demo_on_the_ilium(capsys):
+    assert main(["demo", "--bone", "right-ilium", "--image-source", "mesh", "--trials", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "right ilium of TotalSegmentator's example CT" in printed
+    assert "lateral face of the wing" in printed and "corners of a 40 mm cut" in printed
+    assert "cr-fused (markers + surface, target-free)" in printed and "measured / predicted RMS TRE" in printed
 
 
 def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):

@@ -1,9 +1,17 @@
 """Segmentation and IPC on analytic volumes (a sphere, a hollow cylinder) with known answers."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, otsu_threshold, resample_points, segment_bone
+from RAMSICPRegistrationLib.image.ct_segmentation import (
+    bone_surface,
+    fill_axis,
+    otsu_threshold,
+    resample_points,
+    segment_bone,
+)
 from RAMSICPRegistrationLib.image.marker_spheres import fit_sphere
 
 from conftest import analytic_volume, sphere_sdf
@@ -89,3 +97,49 @@ def test_resampling_keeps_one_point_per_cell():
     assert len(thinned) == 100  # a 10 x 10 mm sheet, one point per 1 mm cell
     with pytest.raises(ValueError, match="give a positive number"):
         resample_points(grid, 0.0)
+
+
+def test_cavities_are_filled_across_the_axis_the_scan_cuts():
+    # A plate cut by the field of view at its bottom (k = 0) but longer along i: slices across k enclose its core.
+    mask = np.zeros((60, 20, 30), dtype=bool)
+    mask[5:55, 8:12, 0:25] = True
+    assert fill_axis(mask, np.ones(3)) == 2
+    mask[5:55, 8:12, 0] = False  # inside the field of view everywhere: across its longest extent
+    assert fill_axis(mask, np.ones(3)) == 0
+    assert fill_axis(mask, np.array([1.0, 1.0, 3.0])) == 2  # 72 mm along k against 50 mm along i
+
+
+def test_a_plate_cut_by_the_scan_is_filled_between_its_tables():
+    # An ilium-like plate: two cortical tables (1.5 mm) around a cancellous core, 7 mm thick, 50 mm long in x,
+    # closed at its ends and top, running out of the scan at the bottom. Its core is enclosed only in slices across
+    # z, the axis the scan cuts it along, not across x, its longest extent.
+    def box(half_y, half_x, top):
+        return lambda p: np.maximum(
+            np.maximum(np.abs(p[..., 1] - CENTRE[1]) - half_y, np.abs(p[..., 0] - CENTRE[0]) - half_x), p[..., 2] - top
+        )
+
+    shapes = [(box(3.5, 25.0, CENTRE[2] + 10.0), 1400.0), (box(2.0, 23.5, CENTRE[2] + 8.5), 300.0)]
+    volume = analytic_volume(shapes, size_mm=(60.0, 20.0, 40.0), background_hu=40.0, noise_hu=10.0)
+    segmentation = segment_bone(volume)
+    points = bone_surface(volume, segmentation).points
+    across = np.abs(points[:, 1] - CENTRE[1])
+    height = points[:, 2] - CENTRE[2]
+    on_the_tables = (np.abs(points[:, 0] - CENTRE[0]) < 20.0) & (height < 6.0) & (height > -15.0)
+    assert np.all(np.abs(across[on_the_tables] - 3.5) < 0.5)  # only the outer faces, none at the core's 2 mm
+    with_walls = bone_surface(volume, segmentation, fill_cavities=False).points
+    assert np.sum(np.abs(np.abs(with_walls[:, 1] - CENTRE[1]) - 2.0) < 0.3) > 0.2 * len(with_walls)
+
+
+def test_real_pelvis_keeps_its_ring_when_cavities_are_filled():
+    # The example CT holds the whole pelvis: the slice-by-slice fill must not close the pelvic ring or the gap
+    # between the iliac wings and the sacrum, which would take their inner surfaces out of the IPC.
+    from scipy.spatial import cKDTree
+
+    from RAMSICPRegistrationLib.image.volume_io import load_volume
+
+    volume = load_volume(Path(__file__).parent / "Data" / "example_ct.nii.gz")
+    segmentation = segment_bone(volume)
+    filled = bone_surface(volume, segmentation).points
+    raw = bone_surface(volume, segmentation, fill_cavities=False).points
+    distances, _ = cKDTree(filled).query(raw)
+    assert np.mean(distances > 3.0) < 0.02  # the fill took out less than 2 % of the surface (small cavities)

@@ -77,9 +77,13 @@ def test_step4_registration_result_nodes(workflow):
     assert errors.max() < 0.3  # automatic centres and exact touches: only the CT's own error remains
     parameters = workflow["controller"].parameters
     assert parameters.residualTable.GetNumberOfRows() == 40
-    assert parameters.sweepChart.GetNumberOfPlotSeriesNodes() == 1  # RMS (no targets given)
     assert parameters.referenceToImage is workflow["nodes"]["reference_to_image"]
     assert float(parameters.node.GetParameter("FreMm")) == pytest.approx(result.fre_mm)
+    logic, nodes, image = workflow["logic"], workflow["nodes"], workflow["image"]
+    arguments = (image.ipc_model, nodes["ppc"], image.markers_image, nodes["markers_patient"])
+    logic.register(*arguments, method="cr-ramsicp")  # the sweep plot belongs to RAMSICP
+    assert parameters.sweepChart.GetNumberOfPlotSeriesNodes() == 1  # RMS (no targets given)
+    logic.register(*arguments)  # back to the default method for the later steps
 
 
 def test_step4_excluding_a_point_reruns_without_it(workflow):

@@ -70,7 +70,9 @@ def test_sweep_reports_every_l_and_the_chosen_one(tibia_patient, tibia_index):
         "warnings",
     ):
         assert key in document
-    no_targets = register(tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, sweep=True)
+    no_targets = register(
+        tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, method="cr-ramsicp", sweep=True
+    )
     assert no_targets.scale_policy == "rms-plateau" and no_targets.tre_mm is None
 
 
@@ -98,8 +100,11 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
 @pytest.mark.parametrize(
     "change, message",
     [
-        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp"),
+        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp, cr-fused"),
         ({"method": "cr-icp", "sweep": True}, "apply to cr-ramsicp only"),
+        ({"method": "cr-fused", "policy": "rms-plateau"}, "apply to cr-ramsicp only"),
+        ({"method": "cr-fused", "fle_mm": -1.0}, "marker error (FLE) -1.0 mm: give a positive number"),
+        ({"method": "cr-fused", "probe_noise_mm": float("nan")}, "probe noise nan mm: give a positive number"),
         ({"ppc": np.zeros((2, 3))}, "PPC (probe points): 2 point(s) given, at least 3 needed"),
         ({"ppc": np.outer(np.arange(5.0), (1.0, 2.0, 3.0))}, "PPC (probe points): the points are (nearly) collinear"),
         ({"markers_image": np.zeros((2, 3))}, "markers in the image: 2 point(s) given, at least 3 needed"),
@@ -109,9 +114,9 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
         ),
         ({"targets_image": np.zeros((4, 3))}, "give them in both frames"),
         ({"targets_image": np.zeros((3, 3)), "targets_patient": np.zeros((4, 3))}, "3 in the image"),
-        ({"policy": "targets"}, "ask for the sweep"),
-        ({"sweep": True, "policy": "targets"}, "needs target points"),
-        ({"scale": 0.5}, "must be a finite number >= 1"),
+        ({"method": "cr-ramsicp", "policy": "targets"}, "ask for the sweep"),
+        ({"method": "cr-ramsicp", "sweep": True, "policy": "targets"}, "needs target points"),
+        ({"method": "cr-ramsicp", "scale": 0.5}, "must be a finite number >= 1"),
     ],
 )
 def test_bad_requests_raise_clear_errors(tibia_patient, tibia_index, rng, change, message):

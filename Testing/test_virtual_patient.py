@@ -79,3 +79,31 @@ def test_marker_error_calibration_gives_the_requested_cr_tre(tibia_patient):
         coarse = fit_rigid_transform(trial.markers_patient, trial.markers_image).transform
         tres.append(target_registration_error(coarse, trial.targets_patient, trial.targets_image))
     assert np.mean(tres) == pytest.approx(1.33, rel=0.04)
+
+
+def test_geometry_of_the_ilium_patient(ilium):
+    from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+
+    patient, vertices, _ = ilium
+    assert patient.anatomy == "flat-bone"
+    index = SurfaceIndex(patient.ipc)
+    distances, _ = index.nearest(patient.targets_image)
+    assert distances.max() < 0.6  # the 4 targets are on the bone surface, at the cut's height
+    np.testing.assert_allclose(patient.targets_image[:, 2], patient.cut_height_mm, atol=0.3)
+    assert patient.cut_height_mm == pytest.approx(vertices[:, 2].max() - 30.0)
+    lateral_ends, medial_ends = patient.targets_image[:2], patient.targets_image[2:]
+    # Two ends on the lateral table, 40 mm apart along the cut; across the wing, the medial table's two ends.
+    chord = np.linalg.norm(lateral_ends[1] - lateral_ends[0])
+    assert 40.0 <= chord < 50.0  # 40 mm along the cut's line, a little more across the curved face
+    thickness = np.linalg.norm(lateral_ends - medial_ends, axis=1)
+    assert np.all((thickness > 3.0) & (thickness < 25.0))
+    assert np.all(lateral_ends[:, 0] > medial_ends[:, 0])  # lateral is +x for a right bone
+    # 8 sub-areas on the lateral face, 4 levels below the cut (15 to 60 mm) in 2 columns.
+    centres = np.array([area.mean(axis=0) for area in patient.sub_area_points])
+    assert min(len(area) for area in patient.sub_area_points) > 100
+    np.testing.assert_allclose(patient.cut_height_mm - centres[::2, 2], [15.0, 30.0, 45.0, 60.0], atol=2.0)
+    spacing = np.linalg.norm(patient.markers_image[:, None] - patient.markers_image[None], axis=2)
+    reference_spacing = np.linalg.norm(patient.markers_reference[:, None] - patient.markers_reference[None], axis=2)
+    np.testing.assert_allclose(spacing, reference_spacing, atol=1e-9)  # a rigid pose
+    bone_distance, _ = index.nearest(patient.markers_image)
+    assert bone_distance.min() > 30.0  # the reference body is beside the bone, on a bracket

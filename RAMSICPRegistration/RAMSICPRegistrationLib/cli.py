@@ -14,9 +14,9 @@ from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S, HoldStillDetecto
 from .core.registration import DEFAULT_METHOD, METHODS, POLICIES, register
 from .core.surface_index import SurfaceIndex
 from .core.sweep import make_scales
-from .experiments.demo import MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
+from .experiments.demo import FUSED_LABEL, MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .experiments.experiment_report import write_outputs
-from .experiments.experiments import EXPERIMENTS, run_experiments
+from .experiments.experiments import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES, run_experiments
 from .image.ct_pipeline import process_ct
 from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
 from .image.marker_spheres import sphere_labelmap
@@ -28,10 +28,17 @@ from .io.surface_files import read_surface_points, write_surface
 from .simulation.ct_painting import BODY_MATERIALS, ReferenceBodyModel, rotated_direction
 from .simulation.ct_phantom import FILE_FRAMES, make_ct_phantom, write_phantom
 from .simulation.package_data import BONES, shipped_patient
+from .simulation.virtual_patient import LAYOUT_WORDS
 
 EXIT_BAD_INPUT = 2
 #: ``ramsicp ipc --markers``: every file was written, but fewer marker centres are usable than the tool has.
 EXIT_TOO_FEW_MARKERS = 3
+
+FLE_SOURCES = {"fre": "from the CR's FRE", "floor": "the floor: the FRE was smaller", "given": "given"}
+SIGMA_SOURCES = {
+    "prior": "from the probe noise and the IPC spacing",
+    "residuals": "from the residuals: noisier than the probe",
+}
 
 
 def main(argv=None):
@@ -81,10 +88,14 @@ def _parser():
     )
     reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
     reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
-    reg.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
+    reg.add_argument(
+        "--method",
+        choices=METHODS,
+        help=f"default {DEFAULT_METHOD} (markers and probe points in one fit); cr-ramsicp with --scale or --sweep",
+    )
     how = reg.add_mutually_exclusive_group()
-    how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5)")
-    how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy")
+    how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5; cr-ramsicp)")
+    how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy (cr-ramsicp)")
     reg.add_argument(
         "--scales",
         nargs=3,
@@ -101,7 +112,8 @@ def _parser():
     reg.add_argument(
         "--fle",
         type=float,
-        help="marker localisation error (mm) for the predicted TRE (default: estimated from the FRE)",
+        help="marker localisation error (mm) for the predicted TRE and cr-fused's marker weights "
+        "(default: estimated from the FRE)",
     )
     reg.add_argument(
         "--untagged-space",
@@ -112,7 +124,9 @@ def _parser():
     reg.add_argument("--json", type=Path, help="write the full result as JSON")
     reg.set_defaults(run=_run_register)
 
-    demo = commands.add_parser("demo", help="CR, CR-ICP and CR-RAMSICP on a virtual patient from a real tibia")
+    demo = commands.add_parser(
+        "demo", help="CR, CR-ICP, CR-RAMSICP and cr-fused on a virtual patient from a real bone (tibia or ilium)"
+    )
     demo.add_argument("--trials", type=int, default=50, help="number of simulated registrations (default 50)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     demo.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
@@ -252,10 +266,17 @@ def _parser():
     )
     phantom.set_defaults(run=_run_phantom)
 
-    reproduce = commands.add_parser("reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms")
+    reproduce = commands.add_parser(
+        "reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with cr-fused"
+    )
     reproduce.add_argument("--experiment", choices=(*EXPERIMENTS, "all"), default="all")
     reproduce.add_argument("--trials", type=int, help="repetitions per condition (default: the paper's)")
-    reproduce.add_argument("--subjects", type=int, default=15, help="virtual patients (default 15, as in Fig. 8)")
+    reproduce.add_argument(
+        "--subjects",
+        type=int,
+        default=DEFAULT_SUBJECTS,
+        help=f"virtual patients, the bones {', '.join(SUBJECT_BONES)} in turn (default {DEFAULT_SUBJECTS})",
+    )
     reproduce.add_argument("--seed", type=int, default=0)
     reproduce.add_argument("--image-source", choices=("ct", "mesh"), default="ct")
     reproduce.add_argument(
@@ -284,7 +305,7 @@ def _run_register(arguments):
         markers_patient,
         targets_image,
         targets_patient,
-        method=arguments.method,
+        method=arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp"),
         scale=arguments.scale,
         sweep=arguments.sweep,
         scales=make_scales(*arguments.scales),
@@ -328,6 +349,11 @@ def _read_markers_pair(arguments, space):
     )
 
 
+def _default_method_fits(arguments):
+    """--scale, --sweep and --policy are RAMSICP's: without --method they ask for cr-ramsicp."""
+    return arguments.scale is None and not arguments.sweep and arguments.policy is None
+
+
 def _format_result(result, ipc_count, seconds):
     lines = []
     method = result.method.upper()
@@ -343,8 +369,19 @@ def _format_result(result, ipc_count, seconds):
         f"probe points RMS  {result.ppc_rms_mm:.2f} mm to the surface "
         f"(worst: point {worst}, {result.residuals_mm[worst]:.2f} mm)"
     )
+    weights = result.fused_weights
+    if weights is not None:
+        lines.append(
+            f"weights           markers: FLE {weights.marker_fle_mm:.2f} mm ({FLE_SOURCES[weights.fle_source]}); "
+            f"probe points: {weights.surface_sigma_mm:.2f} mm from the surface ({SIGMA_SOURCES[weights.sigma_source]})"
+        )
     if result.tre_mm is not None:
         lines.append(f"TRE (eq. 11)      {result.tre_mm:.2f} mm  [{_numbers(result.target_errors_mm)}]")
+        if result.predicted_tre_mm is not None:
+            lines.append(
+                f"predicted TRE     {result.predicted_tre_rms_mm:.2f} mm  [{_numbers(result.predicted_tre_mm)}] "
+                "from the fused fit's covariance"
+            )
         lines.append(f"predicted CR TRE  [{_numbers(result.predicted_cr_tre_mm)}] mm for FLE {result.fle_mm:.2f} mm")
     lines.append("ReferenceToImage")
     lines.extend("  " + "  ".join(f"{value:11.5f}" for value in row) for row in result.reference_to_image)
@@ -409,9 +446,10 @@ def _run_demo(arguments):
 
 
 def _format_demo(report, total_seconds):
-    bone = report.bone.replace("-", " ")
+    bone = BONES[report.bone]
+    words = LAYOUT_WORDS[bone["anatomy"]]
     side = report.image_side
-    lines = [f"RAMSICP Navigator demo: virtual patient from the Visible Human Female {bone} (CC BY 4.0)"]
+    lines = [f"RAMSICP Navigator demo: virtual patient from the {report.bone.replace('-', ' ')} of {bone['source']}"]
     if report.image_source == "ct":
         errors = side.marker_errors_mm
         lines.append(
@@ -422,20 +460,32 @@ def _format_demo(report, total_seconds):
     else:
         lines.append(f"  IPC {report.ipc_points:,} points sampled on the bone mesh")
     lines += [
-        f"  PPC {report.probe_points} probe points in 8 sub-areas x 5 on the medial shaft; probe noise "
+        f"  PPC {report.probe_points} probe points in 8 sub-areas x 5 on {words['probe']}; probe noise "
         f"{report.probe_noise_mm:.2f} mm RMS; reference body NDI 8700339 (4 spheres, 11.5 mm)",
         f"  manual marker placement error {report.marker_fle_mm:.2f} mm RMS (set for the paper's CR TRE); "
-        f"4 targets on a high tibial osteotomy cut; {report.trials} trials, seed {report.seed}",
+        f"4 targets at {words['targets']}, each the mean of 10 touches ({report.target_noise_mm:.2f} mm RMS); "
+        f"{report.trials} trials, seed {report.seed}",
     ]
     for mode, rows in report.summary().items():
-        lines += ["", f"  {MARKER_MODES[mode]}", f"  {'method':<42} {'TRE mean +- sd (mm)':>20}   {'paper (mm)':>12}"]
+        lines += [
+            "",
+            f"  {MARKER_MODES[mode]}",
+            f"  {'method':<42} {'TRE mean +- sd (mm)':>20}   {'paper (mm)':>12}   {'predicted (mm)':>14}",
+        ]
         for label, (mean, sd) in rows.items():
             paper = PAPER_TRE_MM.get(PAPER_ROWS.get(label)) if mode == "manual" else None
             paper_text = f"{paper[0]:.2f} +- {paper[1]:.2f}" if paper else ""
-            lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}")
+            predicted = report.predicted_tre_mm[mode] if label == FUSED_LABEL else None
+            predicted_text = f"{np.mean(predicted):.2f}" if predicted is not None else ""
+            lines.append(f"  {label:<42} {mean:>9.2f} +- {sd:<8.2f}   {paper_text:>12}   {predicted_text:>14}")
         lines.append(
             "  mean L chosen by policy: "
             + ", ".join(f"{policy} {np.mean(values):.1f}" for policy, values in report.chosen_scales[mode].items())
+        )
+        lines.append(
+            f"  cr-fused: measured / predicted RMS TRE {report.calibration(mode):.2f} (1 = calibrated; the targets' "
+            f"own {report.target_noise_mm:.2f} mm counted); it warned in {report.fused_warnings[mode]} of "
+            f"{report.trials} trials"
         )
     seconds = report.seconds
     image_seconds = ", ".join(f"{name.replace('_', ' ')} {value:.1f} s" for name, value in side.seconds.items())
@@ -444,7 +494,8 @@ def _format_demo(report, total_seconds):
         f"  time: {total_seconds:.1f} s in all"
         + (f" ({image_seconds})" if image_seconds else "")
         + f"; KD-tree {1000 * seconds['kd_tree_build']:.0f} ms once; "
-        f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep",
+        f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep "
+        "+ cr-fused",
     ]
     return "\n".join(lines)
 
@@ -485,8 +536,8 @@ def _run_live_demo(arguments):
     print(f"  collected points vs the true touches: {np.sqrt(np.mean(error**2)):.2f} mm RMS, {error.max():.2f} mm max")
     for label, registered in (("live points", result.live), ("exact touches", result.reference)):
         print(
-            f"  CR-RAMSICP on the {label:<14} L = {registered.scale:g}: TRE {registered.tre_mm:.2f} mm, "
-            f"probe points {registered.ppc_rms_mm:.2f} mm RMS"
+            f"  {registered.method.upper()} on the {label:<14} TRE {registered.tre_mm:.2f} mm "
+            f"(predicted {registered.predicted_tre_rms_mm:.2f}), probe points {registered.ppc_rms_mm:.2f} mm RMS"
         )
     spreads = [touch.spread_mm for touch in result.touches]
     print(

@@ -1,4 +1,4 @@
-"""The whole registration of the paper: CR, then optionally ICP or RAMSICP, with its errors and warnings.
+"""The whole registration: CR, then optionally ICP or RAMSICP (the paper), or the fused fit, with errors and warnings.
 
 ``register`` is the one entry point the command line, the Slicer logic and the experiments call.
 """
@@ -7,8 +7,18 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
-from .constraint import analyse_pose_constraint
+from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
+from .fused import (
+    FLE_FLOOR_MM,
+    RESTART_RATIO,
+    FusedWeights,
+    fused_fit,
+    marker_fle,
+    predicted_errors,
+    surface_sigma,
+)
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
@@ -19,10 +29,11 @@ from .validation import as_points, check_not_collinear
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("cr", "cr-icp", "cr-ramsicp")
+METHODS = ("cr", "cr-icp", "cr-ramsicp", "cr-fused")
 
-#: The method the command line, the demo, the Slicer module and the scenarios use unless told otherwise.
-DEFAULT_METHOD = "cr-ramsicp"
+#: The method the command line, the demo, the Slicer module and the scenarios use unless told otherwise: the one
+#: that measures best without targets (README, "The fused registration"): markers and probe points in one fit.
+DEFAULT_METHOD = "cr-fused"
 
 #: How L is chosen from a sweep.
 #: ``targets``: the paper's choice, the L of minimum TRE (needs targets: evaluation only).
@@ -39,6 +50,17 @@ PLATEAU_TOLERANCE = 0.005
 MARKER_FRE_LIMIT_MM = 2.0
 #: A registered probe point farther than this from the surface (mm) and 3x the median is reported.
 OUTLIER_LIMIT_MM = 1.0
+#: cr-fused: markers moved off the CR further than their scatter explains at this significance are reported.
+DISAGREEMENT_P = 0.01
+#: cr-fused: probe points that fit the surface this many times worse than the prior noise are reported.
+SURFACE_NOISE_RATIO = 2.0
+#: How cr-fused's own warnings begin (for counting them).
+FUSED_WARNINGS = (
+    "The markers and the probe points disagree",
+    "The probe points fit the surface worse",
+    "cr-fused stopped",
+    "cr-fused started again",
+)
 
 
 @dataclass(frozen=True)
@@ -49,6 +71,11 @@ class RegistrationResult:
     ``residuals_mm`` are the distances of the registered probe points to the IPC, ``ppc_rms_mm`` their RMS.
     ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets; ``predicted_cr_tre_mm`` is the
     Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm``.
+
+    cr-fused also gives ``fused_weights`` (the FLE and surface noise behind its weights, ``core.fused.FusedWeights``),
+    ``pose_covariance`` (6, 6: small rotation in rad about ``covariance_centre_mm``, then translation in mm, image
+    coordinates) and, with targets, ``predicted_tre_mm``, the registration error that covariance predicts at each
+    target (eq. F4 of ``core.fused``); ``predicted_error_mm`` gives it at any image point, e.g. along a planned cut.
     """
 
     method: str
@@ -68,6 +95,23 @@ class RegistrationResult:
     converged: bool = None
     sweep: tuple = ()
     warnings: tuple = ()
+    fused_weights: object = None
+    pose_covariance: np.ndarray = None
+    covariance_centre_mm: np.ndarray = None
+    predicted_tre_mm: np.ndarray = None
+
+    @property
+    def predicted_tre_rms_mm(self):
+        """RMS over the targets of ``predicted_tre_mm`` (mm), the figure to compare with ``tre_mm``; or None."""
+        if self.predicted_tre_mm is None:
+            return None
+        return float(np.sqrt(np.mean(np.square(self.predicted_tre_mm))))
+
+    def predicted_error_mm(self, points_image):
+        """Predicted RMS registration error (mm) at each (T, 3) image point from the fused covariance (cr-fused)."""
+        if self.pose_covariance is None:
+            raise ValueError(f"{self.method} gives no pose covariance; the predicted error needs cr-fused")
+        return predicted_errors(self.pose_covariance, self.covariance_centre_mm, points_image)
 
     def to_dict(self):
         """JSON-ready dictionary with every figure of the result."""
@@ -93,6 +137,11 @@ class RegistrationResult:
             "converged": self.converged,
             "sweep": [entry.to_dict() for entry in self.sweep],
             "warnings": list(self.warnings),
+            "fused_weights": None if self.fused_weights is None else self.fused_weights.to_dict(),
+            "pose_covariance": listed(self.pose_covariance),
+            "covariance_centre_mm": listed(self.covariance_centre_mm),
+            "predicted_tre_mm": listed(self.predicted_tre_mm),
+            "predicted_tre_rms_mm": self.predicted_tre_rms_mm,
         }
 
 
@@ -103,15 +152,16 @@ def register(
     markers_patient,
     targets_image=None,
     targets_patient=None,
-    method="cr-ramsicp",
+    method=DEFAULT_METHOD,
     scale=None,
     sweep=False,
     scales=PAPER_SCALES,
     policy=None,
     fle_mm=None,
     min_radius_mm=DEFAULT_MIN_RADIUS_MM,
+    probe_noise_mm=DEFAULT_PROBE_NOISE_MM,
 ):
-    """Register the patient (reference frame) to the image: CR, CR-ICP or CR-RAMSICP.
+    """Register the patient (reference frame) to the image: CR, CR-ICP, CR-RAMSICP or the fused fit (cr-fused).
 
     Args:
         ipc: SurfaceIndex, or (M, 3) IPC points in image coordinates (mm).
@@ -119,11 +169,13 @@ def register(
         markers_image: (K, 3) marker-sphere centres in the image (mm), K >= 3.
         markers_patient: (K, 3) the same centres in reference coordinates, same order.
         targets_image, targets_patient: optional (T, 3) targets for the TRE (eq. 11).
-        method: 'cr', 'cr-icp' or 'cr-ramsicp'.
+        method: 'cr', 'cr-icp', 'cr-ramsicp' or 'cr-fused' (default ``DEFAULT_METHOD``).
         scale: L for a single RAMSICP run (default ``DEFAULT_SCALE``); with ``sweep`` it is the 'fixed' L.
         sweep: run RAMSICP for every L in ``scales`` and choose one by ``policy``.
         policy: one of POLICIES; default 'targets' when targets are given, else 'rms-plateau'.
-        fle_mm: marker localisation error for the predicted TRE; estimated from the FRE when None.
+        fle_mm: marker localisation error (RMS 3-D, mm) for the predicted TRE and cr-fused's marker weights;
+            estimated from the FRE when None.
+        probe_noise_mm: RMS 3-D probe-tip error (mm) behind cr-fused's surface weights.
 
     Raises:
         ValueError: bad points (see ``fit_rigid_transform``), unknown method or policy, a policy that needs
@@ -131,8 +183,11 @@ def register(
     """
     if method not in METHODS:
         raise ValueError(f"method {method!r}: use one of {', '.join(METHODS)}")
-    if method != "cr-ramsicp" and (sweep or scale is not None):
-        raise ValueError(f"scale and sweep apply to cr-ramsicp only, not to {method}")
+    for value, name in ((fle_mm, "marker error (FLE)"), (probe_noise_mm, "probe noise")):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} {value} mm: give a positive number of mm")
+    if method != "cr-ramsicp" and (sweep or scale is not None or policy is not None):
+        raise ValueError(f"scale, sweep and policy apply to cr-ramsicp only, not to {method}")
     index = ipc if isinstance(ipc, SurfaceIndex) else SurfaceIndex(ipc)
     ppc = as_points(ppc, "PPC (probe points)", min_count=3)
     check_not_collinear(ppc, "PPC (probe points)")
@@ -145,8 +200,12 @@ def register(
     )
     warnings = _marker_warnings(coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
 
-    transform, fine, entries, chosen_policy = coarse.transform, None, (), None
-    if method == "cr-icp":
+    transform, fine, entries, chosen_policy, fused = coarse.transform, None, (), None, None
+    if method == "cr-fused":
+        fused = _fused(index, ppc, coarse, markers_patient, markers_image, fle_mm, probe_noise_mm)
+        fine = fused
+        warnings += _fused_warnings(fused, coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
+    elif method == "cr-icp":
         fine = icp(index, ppc, coarse.transform)
     elif method == "cr-ramsicp":
         if sweep:
@@ -172,24 +231,27 @@ def register(
         transform = fine.transform
         if not fine.converged:
             warnings.append(
-                f"{method} stopped after {fine.iterations} iterations before the RMS settled "
-                "(change above 1e-5 mm); the result may still move: check the CR and the probe points"
+                f"{method} stopped after {fine.iterations} iterations before it settled (its last step still moved "
+                "the points by over 1e-5 mm); the result may still move: check the CR and the probe points"
             )
 
     residuals = surface_residuals(index, transform, ppc)
     warnings += _outlier_warnings(residuals)
     registered = apply_transform(transform, ppc)
     _, matches = index.nearest(registered)
-    report = analyse_pose_constraint(registered, index.normals(matches), long_axis=index.long_axis)
+    report = analyse_pose_constraint(registered, index.normals(matches), probe_noise_mm, long_axis=index.long_axis)
     if report.warning:
-        warnings.append(report.warning)
+        held = " cr-fused holds that motion with the markers; see its predicted TRE." if fused is not None else ""
+        warnings.append(report.warning + held)
 
     fle = fle_mm if fle_mm is not None else fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
-    tre = errors = predicted = None
+    tre = errors = predicted = predicted_fused = None
     if targets_patient is not None:
         errors = target_errors(transform, targets_patient, targets_image)
         tre = float(np.sqrt(np.mean(errors**2)))
         predicted = predicted_tre(np.asarray(markers_image, float), targets_image, fle)
+        if fused is not None:
+            predicted_fused = fused.predicted_errors_mm(targets_image)
     for warning in warnings:
         logger.info("registration warning: %s", warning)
     return RegistrationResult(
@@ -204,13 +266,74 @@ def register(
         target_errors_mm=errors,
         predicted_cr_tre_mm=predicted,
         fle_mm=float(fle),
-        scale=None if fine is None else fine.scale,
+        scale=None if fine is None or fused is not None else fine.scale,
         scale_policy=chosen_policy,
         iterations=None if fine is None else fine.iterations,
         converged=None if fine is None else fine.converged,
         sweep=entries,
         warnings=tuple(warnings),
+        fused_weights=None if fused is None else fused.weights,
+        pose_covariance=None if fused is None else fused.covariance,
+        covariance_centre_mm=None if fused is None else fused.centre_mm,
+        predicted_tre_mm=predicted_fused,
     )
+
+
+def _fused(index, ppc, coarse, markers_patient, markers_image, fle_mm, probe_noise_mm):
+    """cr-fused (``core.fused``) from the CR, with weights from this registration's own data (F2, F3)."""
+    if fle_mm is None:
+        fle, fle_source = marker_fle(coarse.fre_mm, len(coarse.residuals_mm))
+    else:
+        fle, fle_source = float(fle_mm), "given"
+    spacing = index.spacing_mm
+    weights = FusedWeights(fle, surface_sigma(probe_noise_mm, spacing), fle_source, "prior", probe_noise_mm, spacing)
+    return fused_fit(
+        index,
+        ppc,
+        np.asarray(markers_patient, float),
+        np.asarray(markers_image, float),
+        coarse.transform,
+        weights,
+    )
+
+
+def _fused_warnings(fused, coarse, markers_patient, markers_image):
+    """Plain-words warnings when the markers and the probe points of a fused fit do not agree within their noise.
+
+    The markers: the fused pose may move them off the CR only as far as their noise allows. With ``S`` the sum of
+    squared marker residuals, ``(S_fused - S_cr) / p`` over ``S_cr / (3K - 6)`` follows an F distribution with
+    ``p`` (the pose parameters the probe points fix) and ``3K - 6`` degrees of freedom; the CR's own residuals
+    count for at least the FLE floor's.
+    """
+    warnings = []
+    weights = fused.weights
+    count = len(markers_patient)
+    moved = np.linalg.norm(apply_transform(fused.transform, markers_patient) - markers_image, axis=1)
+    cr_sum = max(float(np.sum(coarse.residuals_mm**2)), (3 * count - 6) * FLE_FLOOR_MM**2 / 3.0)
+    extra = max(fused.surface_dof, 0.5)
+    ratio = (float(np.sum(moved**2)) - cr_sum) / extra / (cr_sum / (3 * count - 6))
+    if ratio > stats.f.ppf(1.0 - DISAGREEMENT_P, extra, 3 * count - 6):
+        worst = int(np.argmax(moved))
+        warnings.append(
+            f"The markers and the probe points disagree: the fused pose puts marker {worst} {moved[worst]:.2f} mm "
+            f"from its image position, more than the markers' own scatter (FRE {coarse.fre_mm:.2f} mm) explains "
+            f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
+            "matched to the wrong wall of a thin bone does this."
+        )
+    if fused.starts > 1:
+        warnings.append(
+            f"cr-fused started again: its first fit ended with the probe points more than {RESTART_RATIO:g} times "
+            f"their noise from the surface, so it was run from {fused.starts - 1} poses around the CR and the best "
+            "was kept. Check the CR (marker order and centres) and that the probe points were touched on this bone."
+        )
+    prior = surface_sigma(weights.probe_noise_mm, weights.ipc_spacing_mm)
+    if weights.surface_sigma_mm > SURFACE_NOISE_RATIO * prior:
+        warnings.append(
+            f"The probe points fit the surface worse than the probe noise allows ({weights.surface_sigma_mm:.2f} mm "
+            f"RMS against {prior:.2f} mm expected); cr-fused has weighted them down. Look for points not touched on "
+            "bone, or an IPC that is not this bone's surface."
+        )
+    return warnings
 
 
 def select_scale(entries, policy, fixed_scale=DEFAULT_SCALE):

@@ -1,20 +1,22 @@
-"""One simulated acquisition registered every way the paper compares: CR, CR-ICP, and CR-RAMSICP for every L."""
+"""One simulated acquisition registered every way: the paper's CR, CR-ICP and CR-RAMSICP for every L, and cr-fused."""
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.registration import POLICIES, register, select_scale
+from ..core.registration import FUSED_WARNINGS, POLICIES, register, select_scale
 
 
 @dataclass(frozen=True)
 class TrialResult:
-    """TRE (mm, eq. 11) of one trial: CR, CR-ICP, the RAMSICP sweep, and the L each policy picks.
+    """TRE (mm, eq. 11) of one trial: CR, CR-ICP, the RAMSICP sweep, the L each policy picks, and cr-fused.
 
     Attributes:
         cr_mm, icp_mm: TRE of CR and CR-ICP.
         scales: (S,) the sweep's L values; sweep_tre_mm: (S,) RAMSICP's TRE at each.
         chosen: policy -> (L, TRE) for each of ``POLICIES``.
+        fused_mm: TRE of cr-fused; fused_predicted_mm: the RMS over the targets of its predicted TRE.
+        fused_warned: cr-fused gave a warning of its own (markers and surface disagree, noisy surface, no settling).
     """
 
     cr_mm: float
@@ -22,6 +24,9 @@ class TrialResult:
     scales: np.ndarray
     sweep_tre_mm: np.ndarray
     chosen: dict
+    fused_mm: float
+    fused_predicted_mm: float
+    fused_warned: bool
 
     def ramsicp_mm(self, policy):
         return self.chosen[policy][1]
@@ -40,6 +45,7 @@ def evaluate_trial(index, data, markers_image=None):
     cr = register(method="cr", **common).tre_mm
     icp = register(method="cr-icp", **common).tre_mm
     sweep = register(method="cr-ramsicp", sweep=True, policy="targets", **common).sweep
+    fused = register(method="cr-fused", **common)
     chosen = {}
     for policy in POLICIES:
         entry = sweep[select_scale(sweep, policy)]
@@ -50,4 +56,7 @@ def evaluate_trial(index, data, markers_image=None):
         scales=np.array([entry.scale for entry in sweep]),
         sweep_tre_mm=np.array([entry.tre_mm for entry in sweep]),
         chosen=chosen,
+        fused_mm=fused.tre_mm,
+        fused_predicted_mm=fused.predicted_tre_rms_mm,
+        fused_warned=any(warning.startswith(FUSED_WARNINGS) for warning in fused.warnings),
     )

@@ -151,16 +151,16 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         leave_out_metal: drop the surface in the metal zone (``metal.find_metal_zone``); False keeps it, to
             see what the metal does.
     """
-    mask = segmentation.bone_mask
-    low, high = _bounding_box(mask, pad=4)
+    full_mask = segmentation.bone_mask
+    low, high = _bounding_box(full_mask, pad=4)
     box = tuple(slice(a, b) for a, b in zip(low, high))
-    mask = mask[box]
+    mask = full_mask[box]
     image = segmentation.smoothed[box].copy()
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
     if fill_cavities:
         # Everything darker than the surface level that the bone encloses, slice by slice, is cavity: raising
         # it removes the inner (marrow) wall and leaves the outer edge, which is open to the outside, alone.
-        axis = int(np.argmax(np.array(mask.shape) * volume.spacing))  # along the bone: slices across it
+        axis = fill_axis(full_mask, volume.spacing)
         in_slice = np.zeros((3, 3, 3), dtype=bool)
         in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
         bright = (image >= level) & ndimage.binary_dilation(mask, iterations=2)
@@ -193,6 +193,20 @@ def _without_vertices(vertices, triangles, drop):
     new_index = np.cumsum(keep) - 1
     kept_triangles = triangles[keep[triangles].all(axis=1)]
     return vertices[keep], new_index[kept_triangles]
+
+
+def fill_axis(mask, spacing):
+    """The axis (0, 1, 2) across whose slices the cavities are filled: the one the field of view cuts the bone along.
+
+    Where the scan ends inside the bone, its cavity (marrow, or the cancellous core between an ilium's two
+    cortical tables) is open to the volume's edge in slices along that axis and enclosed only in the slices across
+    it. A bone that the field of view does not cut is filled across its longest extent.
+    """
+    cut = [int(np.take(mask, 0, axis).sum() + np.take(mask, -1, axis).sum()) for axis in range(3)]
+    if max(cut) > 0:
+        return int(np.argmax(cut))
+    present = [np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a))) for a in range(3)]
+    return int(np.argmax([(p[-1] - p[0] + 1) * s for p, s in zip(present, spacing)]))
 
 
 def _surface_level(image, mask, threshold, level, spacing):

@@ -3,8 +3,8 @@
 The paper's C-arm CT has 0.5 mm pixels and 0.625 mm slices. The phantom renders, with partial volume at every
 boundary (signed distances, not voxel labels; see ``ct_painting``):
 
-* the bone from a real mesh: cortical shell (``CORTEX_THICKNESS_MM``), fatty marrow in the shaft and cancellous
-  bone in the epiphysis (``EPIPHYSIS_MM`` below the top);
+* the bone from a real mesh: a cortical shell around fatty marrow in the shaft and cancellous bone in the
+  epiphysis of a long bone, or around cancellous bone throughout a flat bone (``ANATOMY``);
 * soft tissue around the bone, air elsewhere;
 * the reference body (``ReferenceBodyModel``): 4 marker spheres (11.5 mm) at the NDI tool geometry on posts, the
   posts joined by a frame, the frame held by a carbon-fibre bracket that rests on the bone. Posts and frame are
@@ -52,8 +52,13 @@ logger = logging.getLogger(__name__)
 PAPER_SPACING_MM = (0.5, 0.5, 0.625)
 #: Materials (HU); ``ct_painting.MATERIALS_HU`` under its old name.
 HU = MATERIALS_HU
-CORTEX_THICKNESS_MM = 2.5
-EPIPHYSIS_MM = 60.0
+#: Per kind of bone (``VirtualPatient.anatomy``): cortical shell (mm), how far below the top the interior is
+#: cancellous bone rather than marrow (mm), and how far below the planned cut the field of view reaches (mm).
+#: An ilium's cortical tables are thinner than a tibial shaft's and hold cancellous bone between them.
+ANATOMY = {
+    "long-bone": {"cortex_mm": 2.5, "cancellous_below_top_mm": 60.0, "below_cut_mm": 110.0},
+    "flat-bone": {"cortex_mm": 1.5, "cancellous_below_top_mm": np.inf, "below_cut_mm": 100.0},
+}
 SOFT_TISSUE_MM = 15.0
 NOISE_HU = 25.0
 #: Where the field of view cuts a sphere: this far beyond its centre (mm), so about a third of it is missing.
@@ -107,7 +112,7 @@ def make_ct_phantom(
     noise_hu=NOISE_HU,
     defects=None,
     margin_mm=12.0,
-    below_cut_mm=110.0,
+    below_cut_mm=None,
     body=None,
     metal=None,
     direction=LPS_DIRECTION,
@@ -123,7 +128,7 @@ def make_ct_phantom(
         noise_hu: standard deviation of the image noise (HU); 40-60 for a low-dose scan.
         defects: optional {marker number (1 to 4): 'partial' | 'deformed'}.
         margin_mm: field of view beyond the markers and the bone region, on every side.
-        below_cut_mm: how far below the osteotomy cut the bone region reaches.
+        below_cut_mm: how far below the osteotomy cut the bone region reaches (default: ``ANATOMY``'s).
         body: ReferenceBodyModel (plastic posts and frame by default).
         metal: None, a MetalRod, or 'pin' for ``fixation_pin(patient)``: a 5 mm steel pin from inside the
             bracket through the shaft.
@@ -141,6 +146,9 @@ def make_ct_phantom(
     markers = patient.markers_image
     radius = MARKER_DIAMETER_MM / 2.0
     top = vertices[:, 2].max()
+    anatomy = ANATOMY[patient.anatomy]
+    if below_cut_mm is None:
+        below_cut_mm = anatomy["below_cut_mm"]
     bone_region = vertices[vertices[:, 2] >= patient.cut_height_mm - below_cut_mm]
     volume = scanner_grid(
         np.vstack((bone_region, sphere_extremes(markers, radius, direction))), spacing, direction, margin_mm
@@ -149,7 +157,7 @@ def make_ct_phantom(
         volume = cut_through_sphere(volume, markers, radius, cut_marker)
     logger.info("CT phantom grid %s voxels of %s mm", volume.voxels.shape, spacing.tolist())
 
-    _paint_bone(volume, vertices, triangles, top, np.random.default_rng(seed))
+    _paint_bone(volume, vertices, triangles, top, anatomy, np.random.default_rng(seed))
     metal = paint_mounted_body(
         volume,
         patient.reference_to_image,
@@ -176,7 +184,8 @@ def make_ct_phantom(
             "noise_hu": noise_hu,
             "psf_sigma_mm": PSF_SIGMA_MM,
             "hu": dict(HU),
-            "cortex_thickness_mm": CORTEX_THICKNESS_MM,
+            "anatomy": patient.anatomy,
+            "cortex_thickness_mm": anatomy["cortex_mm"],
             "reference_body": body.to_dict(),
             "metal": None if metal is None else metal.to_dict(),
             "seed": seed,
@@ -316,7 +325,7 @@ def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000)
     return np.einsum("ij,ij->i", points - surface[nearest], normals[nearest])
 
 
-def _paint_bone(volume, vertices, triangles, top, rng):
+def _paint_bone(volume, vertices, triangles, top, anatomy, rng):
     """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
@@ -362,8 +371,8 @@ def _paint_bone(volume, vertices, triangles, top, rng):
         + row[1] * np.arange(low[1], high[1] + 1)[None, :, None]
         + row[2] * np.arange(low[2], high[2] + 1)[None, None, :]
     )
-    interior = np.where(ras_z > top - EPIPHYSIS_MM, HU["cancellous"], HU["marrow"])
-    cortex = np.clip((CORTEX_THICKNESS_MM + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
+    interior = np.where(ras_z > top - anatomy["cancellous_below_top_mm"], HU["cancellous"], HU["marrow"])
+    cortex = np.clip((anatomy["cortex_mm"] + signed) / ramp + 0.5, 0.0, 1.0)  # 1 in the outer shell
     bone_hu = cortex * HU["cortex"] + (1.0 - cortex) * interior
     tissue = fraction_inside(signed - SOFT_TISSUE_MM, ramp)
     outside_hu = tissue * HU["soft_tissue"] + (1.0 - tissue) * HU["air"]

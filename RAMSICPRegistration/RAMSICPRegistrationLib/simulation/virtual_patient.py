@@ -1,13 +1,18 @@
 """A virtual patient built from a real bone mesh, for the demo and the tests.
 
-It follows the paper's set-up ("Data acquisition", "Experimental preparation") on a tibia instead of an ilium:
+It follows the paper's set-up ("Data acquisition", "Experimental preparation"), on two kinds of bone:
 
-* image side: the IPC, ``ipc_points`` surface samples of the bone in image (RAS) coordinates, and the 4
-  marker-sphere centres of an NDI reference body fixed beside the bone on a bracket;
-* patient side: the reference frame of that body, related to the image by a known ``reference_to_image``;
-* 8 probe sub-areas SA1-SA8 (4 levels x 2 columns) on the smooth medial face of the proximal shaft, below a
-  planned high tibial osteotomy; 5 points are touched in each;
-* 4 target points: the medial, lateral, anterior and posterior ends of the osteotomy cut.
+* ``long-bone`` (tibia, fibula): 8 probe sub-areas SA1-SA8 (4 levels x 2 columns) on the smooth medial face
+  of the proximal shaft, below a planned high tibial osteotomy; the 4 targets are the medial, lateral,
+  anterior and posterior ends of the cut.
+* ``flat-bone`` (the ilium, the paper's own subject): the sub-areas on the smooth lateral (gluteal) face of the
+  wing (Fig. 4c), 4 levels x 2 columns below a planned cut across the upper wing; the 4 targets are the
+  endpoints of that 40 mm cut on the lateral and the medial surface, the corners of the resected face (Fig. 6b).
+
+Both have the image side (the IPC, ``ipc_points`` surface samples of the bone in image (RAS) coordinates, and the
+4 marker-sphere centres of an NDI reference body fixed beside the bone on a bracket) and the patient side (the
+reference frame of that body, related to the image by a known ``reference_to_image``); 5 points are touched in
+each sub-area.
 
 The IPC here is sampled on the mesh; ``ct_phantom.make_ct_phantom`` renders the same patient as a CT, whose
 image side replaces it, and ``simulate_trial`` serves both.
@@ -22,6 +27,19 @@ from ..core.paired_point import rigid_procrustes
 from ..core.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
 
 PAPER_IPC_POINTS = 194_568
+ANATOMIES = ("long-bone", "flat-bone")
+#: Height of the planned cut below the top of the bone (mm): a high tibial osteotomy, a cut across the upper wing.
+CUT_BELOW_TOP_MM = {"long-bone": 40.0, "flat-bone": 30.0}
+#: Length of the planned cut across the wing (mm); its ends on both surfaces are the targets.
+PLATE_CUT_LENGTH_MM = 40.0
+#: Where the probe points and the targets are, in words, by anatomy (for reports).
+LAYOUT_WORDS = {
+    "long-bone": {"probe": "the smooth medial face of the shaft", "targets": "the ends of a high tibial osteotomy cut"},
+    "flat-bone": {
+        "probe": "the smooth lateral face of the wing",
+        "targets": f"the corners of a {PLATE_CUT_LENGTH_MM:g} mm cut across the upper wing",
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -46,6 +64,7 @@ class VirtualPatient:
     targets_image: np.ndarray
     sub_area_points: tuple  # 8 arrays (K_j, 3): true surface points of each sub-area, image coordinates
     cut_height_mm: float
+    anatomy: str = "long-bone"  # one of ANATOMIES
 
     @classmethod
     def from_mesh(
@@ -53,10 +72,11 @@ class VirtualPatient:
         vertices,
         triangles,
         markers_reference,
-        medial_direction,
+        lateral_direction,
+        anatomy="long-bone",
         seed=0,
         ipc_points=200_000,
-        cut_below_top_mm=40.0,
+        cut_below_top_mm=None,
         bracket_offset_mm=(75.0, 45.0),
         turn_deg=20.0,
     ):
@@ -65,24 +85,40 @@ class VirtualPatient:
         Args:
             vertices, triangles: the mesh, (V, 3) and (K, 3).
             markers_reference: (4, 3) marker centres of the reference body in its own frame (mm).
-            medial_direction: (3,) RAS direction that is medial for this bone (-x for a right tibia).
+            lateral_direction: (3,) RAS direction that is lateral for this bone (+x for a right bone).
+            anatomy: 'long-bone' (probe points on the medial shaft) or 'flat-bone' (on the lateral face of the wing).
             seed: fixes the IPC sampling and so the whole patient.
             ipc_points: IPC size; the paper's IPC has 194,568 points.
-            cut_below_top_mm: height of the osteotomy cut below the top of the tibial plateau.
-            bracket_offset_mm: (lateral, anterior) offset of the reference body from the shaft axis.
+            cut_below_top_mm: height of the osteotomy cut below the top of the bone (default CUT_BELOW_TOP_MM).
+            bracket_offset_mm: (lateral, anterior) offset of the reference body from the bone.
             turn_deg: rotation of the reference body's marker plane about the bone's axis, from facing anterior.
         """
+        if anatomy not in ANATOMIES:
+            raise ValueError(f"anatomy {anatomy!r}: use one of {', '.join(ANATOMIES)}")
         rng = np.random.default_rng(seed)
         ipc, _ = sample_surface(vertices, triangles, ipc_points, rng)
         dense, dense_normals = sample_surface(vertices, triangles, 400_000, rng)
-        medial = np.asarray(medial_direction, dtype=np.float64)
+        lateral = np.asarray(lateral_direction, dtype=np.float64)
         anterior = np.array([0.0, 1.0, 0.0])
+        if cut_below_top_mm is None:
+            cut_below_top_mm = CUT_BELOW_TOP_MM[anatomy]
         cut_height = vertices[:, 2].max() - cut_below_top_mm
-        targets = _cut_end_points(ipc, cut_height, medial, anterior)
-        sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, medial, anterior)
-        shaft_centre = _section_centre(ipc, cut_height - 60.0)
+        if anatomy == "long-bone":
+            targets = _cut_end_points(ipc, cut_height, -lateral, anterior)
+            sub_areas = _medial_face_sub_areas(dense, dense_normals, cut_height, -lateral, anterior)
+            anchor = _section_centre(ipc, cut_height - 60.0)
+            facing = anterior
+        else:
+            face = _face_normal(dense, dense_normals, cut_height, lateral)
+            targets = _plate_cut_end_points(dense, dense_normals, cut_height, face)
+            sub_areas = _plate_face_sub_areas(dense, dense_normals, cut_height, face, targets)
+            # On a bracket out of the middle of the face, its marker plane facing the same way (and the camera).
+            anchor = np.vstack(sub_areas).mean(axis=0)
+            along = _along_face(face)
+            facing = np.cross(along, (0.0, 0.0, 1.0))  # the face's normal made horizontal: the tool stands upright
+            lateral, anterior = face, along if along[1] > 0 else -along
         reference_to_image = _reference_body_pose(
-            markers_reference, shaft_centre, -medial, anterior, bracket_offset_mm, turn_deg
+            markers_reference, anchor, lateral, anterior, bracket_offset_mm, turn_deg, facing
         )
         return cls(
             ipc=ipc,
@@ -91,6 +127,7 @@ class VirtualPatient:
             targets_image=targets,
             sub_area_points=sub_areas,
             cut_height_mm=float(cut_height),
+            anatomy=anatomy,
         )
 
     @property
@@ -201,14 +238,59 @@ def _medial_face_sub_areas(points, normals, cut_height, medial, anterior, radius
     return tuple(areas)
 
 
-def _reference_body_pose(markers, shaft_centre, lateral, anterior, offset_mm, turn_deg):
-    """ReferenceToImage of a reference body on a bracket lateral-anterior of the shaft, facing anterior.
+def _face_normal(points, normals, cut_height, lateral, depth_mm=(10.0, 70.0)):
+    """Mean outward normal (3,) of a plate's lateral face between ``depth_mm`` below the cut."""
+    band = (points[:, 2] < cut_height - depth_mm[0]) & (points[:, 2] > cut_height - depth_mm[1])
+    facing = band & (normals @ lateral > 0.5)
+    mean = normals[facing].mean(axis=0)
+    return mean / np.linalg.norm(mean)
 
-    The tool's marker plane normal (+x of NDI passive tools) faces anterior, towards the camera, turned
-    ``turn_deg`` about the bone's axis; its long axis (+z) runs along the bone.
+
+def _along_face(face):
+    """Unit horizontal direction (3,) lying in a face whose normal is ``face``."""
+    along = np.cross((0.0, 0.0, 1.0), face)
+    return along / np.linalg.norm(along)
+
+
+def _plate_cut_end_points(points, normals, height, face, length_mm=PLATE_CUT_LENGTH_MM):
+    """The 4 corners of a cut across a plate at ``height``: its two ends on the face and on the opposite surface.
+
+    The cut runs ``length_mm`` horizontally along the face, centred on the face's middle at that height; each
+    corner is the surface point of the section nearest to the cut's end line.
     """
-    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(turn_deg)) @ anterior
+    along = _along_face(face)
+    section = np.abs(points[:, 2] - height) < 0.3
+    corners = []
+    for side in (1.0, -1.0):  # the face, then the opposite (medial) surface
+        wall = points[section & (side * (normals @ face) > 0.3)]
+        centre = np.median(points[section & (normals @ face > 0.3)] @ along)
+        for end in (centre - length_mm / 2.0, centre + length_mm / 2.0):
+            corners.append(wall[np.argmin(np.abs(wall @ along - end))])
+    return np.array(corners)
+
+
+def _plate_face_sub_areas(points, normals, cut_height, face, targets, radius_mm=6.0):
+    """8 patches of true surface points on a plate's face: 4 levels below the cut x 2 columns."""
+    along = _along_face(face)
+    middle = float(np.mean(targets[:2] @ along))
+    areas = []
+    for level in cut_height - np.array([15.0, 30.0, 45.0, 60.0]):
+        band = (np.abs(points[:, 2] - level) < 1.0) & (normals @ face > 0.7)
+        for column in (middle - 15.0, middle + 15.0):
+            centre = points[band][np.argmin(np.abs(points[band] @ along - column))]
+            patch = np.linalg.norm(points - centre, axis=1) < radius_mm
+            areas.append(points[patch & (normals @ face > 0.5)])
+    return tuple(areas)
+
+
+def _reference_body_pose(markers, bone_centre, lateral, anterior, offset_mm, turn_deg, facing):
+    """ReferenceToImage of a reference body on a bracket lateral-anterior of the bone.
+
+    The tool's marker plane normal (+x of NDI passive tools) points along ``facing`` (horizontal), towards the
+    camera, turned ``turn_deg`` about the bone's axis; its long axis (+z) runs along the bone.
+    """
+    x_axis = rotation_about_axis((0.0, 0.0, 1.0), np.radians(turn_deg)) @ facing
     z_axis = np.array([0.0, 0.0, 1.0])
     rotation = np.column_stack((x_axis, np.cross(z_axis, x_axis), z_axis))
-    centre = shaft_centre + offset_mm[0] * lateral + offset_mm[1] * anterior
+    centre = bone_centre + offset_mm[0] * lateral + offset_mm[1] * anterior
     return make_transform(rotation, centre - rotation @ markers.mean(axis=0))
