@@ -258,6 +258,10 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
             if status.tip_to_surface_mm is None
             else _("tip to bone surface: {distance:.1f} mm").format(distance=status.tip_to_surface_mm)
         )
+        if status.predicted_error_at_tip_mm is not None:
+            self.ui.tipDistanceLabel.text += _("; predicted registration error at the tip: {error:.2f} mm").format(
+                error=status.predicted_error_at_tip_mm
+            )
         self.ui.pointCountLabel.text = _("{count} probe points, {markers} marker centres").format(
             count=status.probe_points, markers=status.marker_points
         )

@@ -252,6 +252,11 @@ def test_register_through_the_controller_moves_the_probe_over_the_ct(tracked, sc
     assert controller.run("set_included", 99, False) is None and "the table has points 1 to 40" in (
         controller.status().message
     )
+    parameters.method = "cr-fused"  # the default: markers and surface in one fit, with a pose covariance
+    fused = controller.run("register")
+    assert controller.status().message.startswith("CR-FUSED") and "weights: markers: FLE" in controller.status().message
+    tip_image = apply_transform(fused.reference_to_image, trial.ppc[-1:])  # the tip rests on the last point
+    assert controller.status().predicted_error_at_tip_mm == pytest.approx(fused.predicted_error_mm(tip_image)[0])
 
 
 def test_process_ct_cancel_writes_nothing(scene, tibia_phantom):

@@ -34,12 +34,6 @@ EXIT_BAD_INPUT = 2
 #: ``ramsicp ipc --markers``: every file was written, but fewer marker centres are usable than the tool has.
 EXIT_TOO_FEW_MARKERS = 3
 
-FLE_SOURCES = {"fre": "from the CR's FRE", "floor": "the floor: the FRE was smaller", "given": "given"}
-SIGMA_SOURCES = {
-    "prior": "from the probe noise and the IPC spacing",
-    "residuals": "from the residuals: noisier than the probe",
-}
-
 
 def main(argv=None):
     """Entry point of the console script; returns the process exit code."""
@@ -371,10 +365,7 @@ def _format_result(result, ipc_count, seconds):
     )
     weights = result.fused_weights
     if weights is not None:
-        lines.append(
-            f"weights           markers: FLE {weights.marker_fle_mm:.2f} mm ({FLE_SOURCES[weights.fle_source]}); "
-            f"probe points: {weights.surface_sigma_mm:.2f} mm from the surface ({SIGMA_SOURCES[weights.sigma_source]})"
-        )
+        lines.append(f"weights           {weights.describe()}")
     if result.tre_mm is not None:
         lines.append(f"TRE (eq. 11)      {result.tre_mm:.2f} mm  [{_numbers(result.target_errors_mm)}]")
         if result.predicted_tre_mm is not None:

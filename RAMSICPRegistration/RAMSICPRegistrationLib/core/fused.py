@@ -141,6 +141,21 @@ class FusedWeights:
             "ipc_spacing_mm": self.ipc_spacing_mm,
         }
 
+    def describe(self):
+        """The weights in words, as the command line and the GUI show them."""
+        return (
+            f"markers: FLE {self.marker_fle_mm:.2f} mm ({FLE_SOURCES[self.fle_source]}); probe points: "
+            f"{self.surface_sigma_mm:.2f} mm from the surface ({SIGMA_SOURCES[self.sigma_source]})"
+        )
+
+
+#: Where the marker FLE and the surface noise behind the weights came from, in words.
+FLE_SOURCES = {"fre": "from the CR's FRE", "floor": "the floor: the FRE was smaller", "given": "given"}
+SIGMA_SOURCES = {
+    "prior": "from the probe noise and the IPC spacing",
+    "residuals": "from the residuals: noisier than the probe",
+}
+
 
 def marker_fle(fre_mm, marker_count, floor_mm=FLE_FLOOR_MM):
     """FLE (RMS 3-D, mm) for the weights from the CR's FRE (F2); returns (fle, 'fre' | 'floor')."""

@@ -94,6 +94,7 @@ class NavigationStatus:
     probe_points: int
     marker_points: int
     tip_to_surface_mm: float = None
+    predicted_error_at_tip_mm: float = None  # cr-fused: the registration's predicted error where the tip is
     message: str = ""
     message_is_error: bool = False
 
@@ -319,6 +320,7 @@ class NavigationController:
             probe_points=_count(parameters.probePoints),
             marker_points=_count(parameters.markersPatient),
             tip_to_surface_mm=self._tip_to_surface_mm(parameters),
+            predicted_error_at_tip_mm=self._predicted_error_at_tip_mm(parameters),
             message=self._message[0],
             message_is_error=self._message[1],
         )
@@ -333,6 +335,16 @@ class NavigationController:
             return self.steps.tip_to_surface_mm(*nodes, parameters.referenceToImage)
         except (ValueError, TypeError):
             return None
+
+    def _predicted_error_at_tip_mm(self, parameters):
+        result = self.last_result
+        if result is None or result.pose_covariance is None or parameters.probeTipToProbe is None:
+            return None
+        if parameters.probeToReference is None or self.tool_state("probeToReference").state != "valid":
+            return None
+        tip = self.steps.tip_in_reference(parameters.probeToReference, parameters.probeTipToProbe)
+        tip_image = result.reference_to_image[:3, :3] @ tip + result.reference_to_image[:3, 3]
+        return float(result.predicted_error_mm(tip_image[None])[0])
 
     def availability(self):
         """{action: None when it can run now, else the reason in words} for every action of ``ACTIONS``."""
@@ -576,18 +588,21 @@ def pivot_summary(result):
 
 
 def registration_summary(result):
-    """One line for the surgeon about a registration (what both shells show)."""
+    """What both shells show about a registration: method, FRE, probe points, TRE with its prediction, and for
+    cr-fused the weights it used."""
     tre = "" if result.tre_mm is None else f", TRE {result.tre_mm:.2f} mm"
-    predicted = (
-        ""
-        if result.predicted_cr_tre_mm is None
-        else f", CR TRE predicted {np.max(result.predicted_cr_tre_mm):.2f} mm (FLE {result.fle_mm:.2f} mm)"
-    )
+    if result.predicted_tre_rms_mm is not None:
+        tre += f" (predicted {result.predicted_tre_rms_mm:.2f} mm)"
+    elif result.predicted_cr_tre_mm is not None:
+        tre += f", CR TRE predicted {np.max(result.predicted_cr_tre_mm):.2f} mm (FLE {result.fle_mm:.2f} mm)"
     scale = "" if result.scale is None else f", L = {result.scale:g} ({result.scale_policy})"
-    return (
+    text = (
         f"{result.method.upper()}{scale}: FRE {result.fre_mm:.2f} mm, probe points {result.ppc_rms_mm:.2f} mm RMS "
-        f"from the bone{tre}{predicted}"
+        f"from the bone{tre}"
     )
+    if result.fused_weights is not None:
+        text += f"; weights: {result.fused_weights.describe()}"
+    return text
 
 
 def _count(node):
