@@ -1,6 +1,6 @@
 """The library's folders are the layers of DESIGN.md, and imports only run downwards.
 
-core < io < image < simulation < navigation < experiments < cli: a module may import its own sub-package and
+core < io < image < simulation < navigation < experiments < web < cli: a module may import its own sub-package and
 those before it, never one after it. ``core`` imports numpy, scipy and the standard library only (no VTK, no
 MRML, no Qt). Only ``cli.py`` prints. The checker itself is tested on a small package built in a temporary
 folder, so a core file that imports vtk is shown to fail it.
@@ -16,7 +16,7 @@ import pytest
 import RAMSICPRegistrationLib
 
 PACKAGE = Path(RAMSICPRegistrationLib.__file__).resolve().parent
-LAYERS = ("core", "io", "image", "simulation", "navigation", "experiments", "cli")
+LAYERS = ("core", "io", "image", "simulation", "navigation", "experiments", "web", "cli")
 CORE_THIRD_PARTY = {"numpy", "scipy"}
 
 

@@ -62,12 +62,15 @@ class BridgeController:
     Args:
         scene: the vtkMRMLScene the transform nodes go into.
         clock: monotonic clock (s) for the receiver's stale checks.
+        simulator_options: keyword arguments for ``live_scenario.demo_simulator`` when the simulator is started
+            (e.g. a pivot phase and a loop for the browser view's demo).
     """
 
     ACTIONS = ("connect", "disconnect", "start_tracker", "stop_tracker", "start_recording", "stop_recording")
 
-    def __init__(self, scene, clock=time.monotonic):
+    def __init__(self, scene, clock=time.monotonic, simulator_options=None):
         self.scene, self.clock = scene, clock
+        self.simulator_options = dict(simulator_options or {})
         self.receiver = None
         self.server = None
         self.simulator = None
@@ -143,14 +146,16 @@ class BridgeController:
         needed = SOURCE_REQUIREMENTS.get(source, {})
         return [requirement for module, requirement in needed.items() if importlib.util.find_spec(module) is None]
 
-    def start_tracker(self):
-        """Start the chosen tracker behind a PLUS-compatible server on 127.0.0.1:port, and connect to it."""
+    def start_tracker(self, port=None):
+        """Start the chosen tracker behind a PLUS-compatible server on 127.0.0.1:``port`` (default: the parameter
+        node's; 0: any free port), and connect to it."""
         from RAMSICPRegistrationLib.io.ndi_tools import DEFAULT_PROBE_TOOL, DEFAULT_REFERENCE_TOOL, tool_rom_path
 
         from .ndi_driver import open_tracker
 
         parameters = self.parameters
-        source, address, port = parameters.trackerSource, parameters.trackerAddress, parameters.port
+        source, address = parameters.trackerSource, parameters.trackerAddress
+        port = parameters.port if port is None else port
         missing = self.missing_packages(source)
         if missing:
             raise RuntimeError(f"the {source} tracker needs the Python package(s) {', '.join(missing)}; install them")
@@ -160,7 +165,7 @@ class BridgeController:
         if source == "simulator":
             from .live_scenario import demo_simulator
 
-            self.simulator, _ = demo_simulator()
+            self.simulator, _ = demo_simulator(**self.simulator_options)
             self.simulator.start()
             host, ndi_port = self.simulator.address[:2]
         elif source == "ndi-network":
@@ -180,6 +185,7 @@ class BridgeController:
             raise OSError(
                 f"cannot serve OpenIGTLink on 127.0.0.1:{port} ({error.strerror or error}); choose another port"
             ) from None
+        port = self.server.address[1]  # the port chosen by the system when 0 was asked for
         self.connect("127.0.0.1", port)
         self._say(f"{source} tracker started, served on 127.0.0.1:{port}")
 

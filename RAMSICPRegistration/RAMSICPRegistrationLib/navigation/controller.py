@@ -97,6 +97,7 @@ class NavigationStatus:
     predicted_error_at_tip_mm: float = None  # cr-fused: the registration's predicted error where the tip is
     message: str = ""
     message_is_error: bool = False
+    tip_reference_mm: tuple = None  # (x, y, z) of the calibrated tip in reference coordinates, while tracked
 
     def tool(self, label):
         return next(tool for tool in self.tools if tool.label == label)
@@ -182,7 +183,8 @@ class NavigationController:
     def add_listener(self, callback):
         """Call ``callback(event, data)`` on every event: 'image', 'pivot', 'collected' (data: (points node, index,
         the hold-still Touch or None)), 'auto-collect', 'hold-still', 'registered', 'message' (data: (text,
-        is_error)), 'reset'. Returns the callback, for ``remove_listener``."""
+        is_error)), 'reset', and 'pose' (data: the tool's label, e.g. 'ProbeToReference') for each new pose of a
+        watched tool, at the tracker's rate: keep that one cheap. Returns the callback, for ``remove_listener``."""
         self._listeners.append(callback)
         return callback
 
@@ -269,7 +271,10 @@ class NavigationController:
     # -- tracker events ------------------------------------------------------------------------------------
     def _on_transform_modified(self, caller, event=None):
         name = next((name for name, (node, _) in self._pose_tags.items() if node is caller), None)
-        if name is None or not self._watches[name].new_pose() or name != "probeToReference":
+        if name is None or not self._watches[name].new_pose():
+            return
+        self._notify("pose", WATCHED[name])
+        if name != "probeToReference":
             return
         self._probe_frames += 1
         if self._pivot_poses is not None:
@@ -323,7 +328,27 @@ class NavigationController:
             predicted_error_at_tip_mm=self._predicted_error_at_tip_mm(parameters),
             message=self._message[0],
             message_is_error=self._message[1],
+            tip_reference_mm=self._tip_reference_mm(parameters),
         )
+
+    def _tip_reference_mm(self, parameters):
+        if parameters.probeTipToProbe is None or self.tool_state("probeToReference").state != "valid":
+            return None
+        tip = self.steps.tip_in_reference(parameters.probeToReference, parameters.probeTipToProbe)
+        return tuple(float(value) for value in tip)
+
+    def tip_position(self):
+        """The calibrated probe tip (3,) in world coordinates, mm: image RAS once registered (the transform
+        hierarchy ProbeTipToProbe -> ProbeToReference -> ReferenceToImage), the reference frame before; None
+        before the pivot calibration. What a view follows with its slices."""
+        tip_node = self.parameters.probeTipToProbe
+        if tip_node is None:
+            return None
+        from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+        matrix = vtkMatrix4x4()
+        tip_node.GetMatrixTransformToWorld(matrix)
+        return np.array([matrix.GetElement(row, 3) for row in range(3)])
 
     def _tip_to_surface_mm(self, parameters):
         nodes = (parameters.ipcModel, parameters.probeToReference, parameters.probeTipToProbe)
@@ -574,8 +599,11 @@ class NavigationController:
 
     # -- 7. save -------------------------------------------------------------------------------------------
     def save(self, path):
-        """Save the scene and its data as ``path`` (.mrml), for plain Python and the browser view."""
-        return self.steps.save(path)
+        """Save the scene and its data as ``path`` (.mrml), for plain Python and the browser view; returns the files
+        written (the scene first)."""
+        written = self.steps.save(path)
+        self._say(f"scene saved: {path} and {len(written) - 1} data files")
+        return written
 
 
 def pivot_summary(result):

@@ -1,0 +1,325 @@
+"""The browser navigation view: a trame app on trame-slicer (real MRML and Slicer's displayable managers, no Qt).
+
+A second thin shell over the same ``NavigationController`` as the Slicer module (DESIGN.md, "Two shells, one
+controller"): buttons call ``controller.run(action, ...)``, the panel shows ``status()``, ``availability()``,
+``last_result`` and the parameter node (``panel_state``), and the only listener is ``controller.add_listener``.
+The tracker feed is a ``BridgeController`` (connect to an OpenIGTLink server, or the simulator started here).
+What this module adds is display only: views, the probe needle, residual-coloured points, slices that follow the
+tip (``scene_display``).
+
+The event loop (asyncio, trame's) does everything in one thread, as Slicer's GUI thread does: it polls the
+receiver every ``POLL_INTERVAL_S`` (new poses reach the MRML nodes, the controller and the displayable managers,
+which ask trame-rca for a render), and refreshes the panel every ``PANEL_INTERVAL_S``.
+
+The page can open no file: it has no path input and no upload; the scene is saved into the output folder named
+on the command line, in a new sub-folder per save.
+"""
+
+import asyncio
+import logging
+import os
+import socket
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+
+from ..core.transforms import apply_transform, invert_transform
+from ..navigation import mrml_nodes
+from ..navigation.controller import NavigationController
+from ..navigation.navigation import load_scene
+from .panel_state import panel_state
+from .scene_display import follow_tip, style_workflow_nodes, update_needle, update_residual_points
+
+logger = logging.getLogger(__name__)
+
+POLL_INTERVAL_S = 0.004
+PANEL_INTERVAL_S = 0.2
+#: Frames per second the views are rendered at, at most; trame-rca renders only after a change.
+TARGET_FPS = 30.0
+LAYOUT_ID = "RAMSICP navigation"
+#: The browser demo's simulated probe: a 10 s pivot, then each of the 40 touches held for 1.2 s; again and again.
+DEMO_SIMULATOR = {"pivot_s": 10.0, "dwell_s": 1.2, "move_s": 0.4, "loop": True}
+TRACKER_NODES = {"probeToReference": "ProbeToReference", "referenceToTracker": "ReferenceToTracker"}
+
+
+def configure_environment():
+    """Offscreen EGL rendering (no X server), and trame must not read ``ramsicp``'s own command line."""
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    os.environ.setdefault("TRAME_ARGS", "")
+
+
+def parse_tracker_address(text):
+    """'HOST:PORT' of an OpenIGTLink server -> (host, port); ValueError saying what is wrong."""
+    host, separator, port = str(text).strip().rpartition(":")
+    if not separator or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"--tracker {text!r}: give HOST:PORT of the OpenIGTLink server, e.g. 127.0.0.1:18944")
+    return host, int(port)
+
+
+def check_port_free(host, port):
+    """The port the page will be served on (a free one when ``port`` is 0); OSError when it is taken."""
+    try:
+        with socket.create_server((host, port)) as probe:
+            return probe.getsockname()[1]
+    except OSError as error:
+        raise OSError(
+            f"cannot serve the page on {host}:{port} ({error.strerror or error}); choose another --port"
+        ) from None
+
+
+def navigation_layout():
+    """The 3D view on the left, the axial, coronal and sagittal slices stacked on the right."""
+    from trame_slicer.views import Layout, LayoutDirection, ViewLayoutDefinition
+
+    slices = [ViewLayoutDefinition.axial_view(), ViewLayoutDefinition.coronal_view()]
+    slices.append(ViewLayoutDefinition.sagittal_view())
+    return Layout(
+        LayoutDirection.Horizontal,
+        [ViewLayoutDefinition.threed_view(), Layout(LayoutDirection.Vertical, slices)],
+        flex_sizes=["3", "2"],
+    )
+
+
+class NavigationWebApp:
+    """The trame server, the Slicer views and the two controllers of one browser navigation session.
+
+    Use: ``app = NavigationWebApp(output)``; optionally ``app.load_scene(path)``; then ``app.start_workflow()``;
+    optionally ``app.add_demo_patient()``; then ``app.connect_tracker(host, port)`` or ``app.start_simulator()``;
+    finally ``app.serve(host, port, on_ready)`` (blocks until the server stops).
+
+    Args:
+        output_directory: where collected points are autosaved and scenes are saved (created when needed).
+        target_fps: the views' rendering rate, at most.
+    """
+
+    def __init__(self, output_directory, target_fps=TARGET_FPS):
+        configure_environment()
+        from trame.app import get_server
+        from trame_slicer.core import LayoutManager, SlicerApp
+        from trame_slicer.rca_view import register_rca_factories
+
+        self.output_directory = Path(output_directory)
+        self.server = get_server(None, client_type="vue3")
+        self.slicer = SlicerApp()
+        self.scene = self.slicer.scene
+        # blur_fps=None: a second screen nobody hovers renders as fast as the focused one.
+        from .panel import slice_view_gutter, three_d_view_gutter
+
+        register_rca_factories(
+            self.slicer.view_manager,
+            self.server,
+            slice_view_ui_f=slice_view_gutter,
+            three_d_view_ui_f=three_d_view_gutter,
+            target_fps=target_fps,
+            blur_fps=None,
+        )
+        self.layout = LayoutManager(self.scene, self.slicer.view_manager, self.server)
+        self.layout.register_layout(LAYOUT_ID, navigation_layout())
+        self.layout.set_layout(LAYOUT_ID)
+        for view in self.slicer.view_manager.get_views():
+            view.render_window().SetMultiSamples(0)  # 8x multisampling costs 10x on software GL
+        self.controller = None
+        self.bridge = None
+        self._tasks = []
+        self._panel_dirty = True
+
+    # -- what the session works on -------------------------------------------------------------------------
+    def load_scene(self, path):
+        """Read a scene saved by Slicer or by this view (.mrb, or .mrml with its data files); before
+        ``start_workflow``. ValueError when the file is missing, a folder or unreadable."""
+        path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"--scene {path}: is a folder; give a .mrb or .mrml file")
+        if not path.is_file():
+            raise ValueError(f"--scene {path}: no such file")
+        try:
+            if path.suffix.lower() == ".mrb":
+                with tempfile.TemporaryDirectory() as folder, zipfile.ZipFile(path) as archive:
+                    archive.extractall(folder)
+                    scenes = sorted(Path(folder).rglob("*.mrml"))
+                    if not scenes:
+                        raise ValueError(f"--scene {path}: the archive holds no .mrml scene")
+                    load_scene(self.scene, scenes[0])
+            elif path.suffix.lower() == ".mrml":
+                load_scene(self.scene, path)
+            else:
+                raise ValueError(f"--scene {path}: give a Slicer scene, .mrb or .mrml")
+        except (RuntimeError, zipfile.BadZipFile, OSError) as error:
+            raise ValueError(f"--scene {path}: cannot read it ({error})") from None
+
+    def start_workflow(self, simulator_options=None):
+        """Create the controllers on the scene, listen to the navigation controller and show its nodes."""
+        from OpenIGTLinkBridgeLib.bridge_controller import BridgeController
+
+        self.output_directory.mkdir(parents=True, exist_ok=True)
+        self.controller = NavigationController(self.scene, autosave_directory=self.output_directory)
+        options = DEMO_SIMULATOR if simulator_options is None else simulator_options
+        self.bridge = BridgeController(self.scene, simulator_options=options)
+        parameters = self.controller.parameters
+        for name, node_name in TRACKER_NODES.items():  # the receiver writes into these nodes, found by name
+            if getattr(parameters, name) is None:
+                setattr(parameters, name, self.controller.steps.transform_node(node_name))
+        self.controller.add_listener(self._on_workflow_event)
+        self._show_workflow_nodes()
+
+    def add_demo_patient(self):
+        """The demo patient: its CT phantom processed into the IPC and marker centres, the reference body's
+        marker centres, and the four osteotomy targets in both frames (so the page shows a TRE)."""
+        from ..navigation.scenarios import make_patient_and_ct
+
+        patient, volume, _ = make_patient_and_ct()
+        parameters = self.controller.parameters
+        parameters.ctVolume = mrml_nodes.volume_node(self.scene, volume, "CT")
+        image = self.controller.process_ct()
+        if image is None or image.warnings:
+            raise RuntimeError("the demo CT did not give clean marker spheres: " + "; ".join(image.warnings))
+        self.controller.add_reference_body_markers()
+        targets_patient = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image)
+        labels = [f"T{number + 1}" for number in range(len(targets_patient))]
+        parameters.targetsImage = mrml_nodes.fiducial_node(self.scene, patient.targets_image, labels, "TargetsImage")
+        parameters.targetsPatient = mrml_nodes.fiducial_node(self.scene, targets_patient, labels, "TargetsPatient")
+        parameters.targetsImage.GetDisplayNode().SetGlyphSize(3.0)
+        self._show_workflow_nodes()
+
+    def connect_tracker(self, host, port):
+        """Follow the OpenIGTLink server at ``host``:``port`` (reconnects by itself when it comes back)."""
+        self.bridge.connect(host, port)
+
+    def start_simulator(self):
+        """The simulated Vega playing the demo patient's pivot and touches, served here on a free port."""
+        self.bridge.parameters.trackerSource = "simulator"
+        self.bridge.start_tracker(0)
+
+    # -- display -------------------------------------------------------------------------------------------
+    def _show_workflow_nodes(self):
+        parameters = self.controller.parameters
+        style_workflow_nodes(parameters)
+        update_needle(self.scene, parameters.probeTipToProbe)
+        update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
+        if parameters.ctVolume is not None:
+            self.slicer.display_manager.show_volume_in_slice_background(parameters.ctVolume)
+        self.slicer.display_manager.reset_views()
+
+    def _on_workflow_event(self, event, data):
+        parameters = self.controller.parameters
+        if event == "pose":
+            if data == "ProbeToReference" and self._registered(parameters):
+                position = self.controller.tip_position()
+                if position is not None:
+                    follow_tip(self.scene, position)
+            return
+        if event == "pivot" and data is not None:
+            update_needle(self.scene, parameters.probeTipToProbe)
+        elif event == "registered":
+            update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
+        elif event in ("collected", "reset", "image"):
+            style_workflow_nodes(parameters)
+        self._panel_dirty = True
+
+    @staticmethod
+    def _registered(parameters):
+        probe, registration = parameters.probeToReference, parameters.referenceToImage
+        return probe is not None and registration is not None and probe.GetParentTransformNode() is registration
+
+    # -- the page's actions --------------------------------------------------------------------------------
+    def run(self, action, *args):
+        """Run a controller action as the page's buttons do, then refresh the panel. Poses that arrived while the
+        event loop was busy (rendering, a save) are applied first: the action works on the newest pose, and a
+        tracker that is streaming is never judged stale because this process was late to read it."""
+        self.bridge.poll()
+        result = self.controller.run(action, *args)
+        self.refresh_panel()
+        return result
+
+    def run_after_showing_busy(self, action, *args):
+        """For a long action (registration, saving): show 'busy' on the page first, then run it."""
+        with self.server.state:
+            self.server.state.busy = action
+
+        async def later():
+            await asyncio.sleep(0.05)
+            try:
+                self.run(action, *args)
+            finally:
+                with self.server.state:
+                    self.server.state.busy = ""
+
+        self._tasks.append(asyncio.ensure_future(later()))
+
+    def register(self):
+        self.run_after_showing_busy("register")
+
+    def save(self):
+        folder = self.output_directory / time.strftime("scene-%Y%m%d-%H%M%S")
+        self.run_after_showing_busy("save", folder / "navigation.mrml")
+
+    def set_included(self, index, included):
+        self.run("set_included", int(index), bool(included))
+        update_residual_points(
+            self.scene, self.controller.parameters.residualTable, self.controller.parameters.referenceToImage
+        )
+
+    def set_choice(self, name, value):
+        """The method or policy chosen on the page, written into the parameter node."""
+        try:
+            setattr(self.controller.parameters, name, value)
+        except ValueError as error:
+            logger.warning("%s", error)
+        self.refresh_panel()
+
+    def refresh_panel(self):
+        with self.server.state:
+            self.server.state.update(panel_state(self.controller, self.bridge.status()))
+        self._panel_dirty = False
+
+    # -- serving -------------------------------------------------------------------------------------------
+    def build_page(self):
+        from .panel import build_page
+
+        self.server.state.update(panel_state(self.controller, self.bridge.status()))
+        self.server.state.busy = ""
+        self.server.state.trame__title = "RAMSICP Navigator"
+        build_page(self)
+
+    async def _poll_loop(self):
+        while True:
+            try:
+                self.bridge.poll()
+            except Exception:  # a display error must not stop the tracker feed
+                logger.exception("tracker poll failed")
+            await asyncio.sleep(POLL_INTERVAL_S)
+
+    async def _panel_loop(self):
+        while True:
+            try:
+                self.refresh_panel()
+            except Exception:
+                logger.exception("panel refresh failed")
+            await asyncio.sleep(PANEL_INTERVAL_S)
+
+    def serve(self, host="127.0.0.1", port=8080, on_ready=None):
+        """Serve the page until the server stops (Ctrl+C); ``on_ready(url)`` once it listens."""
+        port = check_port_free(host, port)
+        self.build_page()
+
+        def ready(**_):
+            self._tasks += [asyncio.ensure_future(self._poll_loop()), asyncio.ensure_future(self._panel_loop())]
+            if on_ready is not None:
+                on_ready(f"http://{host}:{port}/")
+
+        self.server.controller.on_server_ready.add(ready)
+        try:
+            self.server.start(
+                host=host, port=port, open_browser=False, show_connection_info=False, timeout=0, disable_logging=True
+            )
+        finally:
+            self.close()
+
+    def close(self):
+        for task in self._tasks:
+            task.cancel()
+        if self.bridge is not None:
+            self.bridge.close()
+        if self.controller is not None:
+            self.controller.close()

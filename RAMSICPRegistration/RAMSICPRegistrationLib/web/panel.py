@@ -1,0 +1,212 @@
+"""The page: the workflow panel in a side drawer, the Slicer views in the main area (trame Vuetify 3 widgets).
+
+Every value shown comes from the state that ``panel_state`` fills; every button calls a controller action through
+the app (``NavigationWebApp.run``) and is disabled, with the reason as its tooltip, when ``availability()`` says
+it cannot run. Elements the tests read carry an ``id``.
+"""
+
+PANEL_WIDTH_PX = 400
+
+
+def _view_marker(view):
+    """A hidden element beside the view's image, ``id="view-<singleton tag>"`` (ThreeD, Red, Green, Yellow), so
+    that a test finds each view's ``<img>``."""
+    from trame.widgets import html
+
+    html.Span(id=f"view-{view.get_singleton_tag()}", style="display: none;")
+
+
+def three_d_view_gutter(server, view_id, view):
+    from trame_slicer.app.ui import create_vertical_view_gutter_ui
+
+    create_vertical_view_gutter_ui(server, view_id, view)
+    _view_marker(view)
+
+
+def slice_view_gutter(server, view_id, view):
+    from trame_slicer.app.ui import create_vertical_slice_view_gutter_ui
+
+    create_vertical_slice_view_gutter_ui(server, view_id, view)
+    _view_marker(view)
+
+
+def _action_button(app, label, action, icon=None, **options):
+    from trame.widgets import vuetify3 as v3
+
+    return v3.VBtn(
+        label,
+        click=options.pop("click", lambda: app.run(action)),
+        disabled=(f"!!blocked.{action} || !!busy",),
+        title=(f"blocked.{action}",),
+        prepend_icon=icon,
+        size="small",
+        variant="tonal",
+        classes="ma-1",
+        **options,
+    )
+
+
+def _section(title):
+    from trame.widgets import vuetify3 as v3
+
+    card = v3.VCard(variant="flat", classes="mb-2")
+    with card:
+        v3.VCardSubtitle(title, classes="pt-2 text-uppercase font-weight-bold")
+    return card
+
+
+def build_page(app):
+    """Build the page's UI on ``app.server`` (a NavigationWebApp)."""
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+    from trame_vuetify.ui.vuetify3 import SinglePageWithDrawerLayout
+
+    with SinglePageWithDrawerLayout(app.server, full_height=True) as page:
+        page.title.set_text("RAMSICP Navigator")
+        page.footer.hide()
+        with page.toolbar:
+            v3.VSpacer()
+            html.Div(
+                "{{ message }}",
+                id="message",
+                classes=("message_is_error ? 'text-error text-body-2 px-4' : 'text-body-2 px-4'",),
+            )
+            v3.VProgressCircular(v_if="busy", indeterminate=True, size=20, classes="mr-4")
+        page.drawer.width = PANEL_WIDTH_PX
+        page.drawer.permanent = True
+        with page.drawer, html.Div(classes="pa-2", style="overflow-y: auto; height: 100%;"):
+            _tracker_section()
+            _pivot_section(app)
+            _collect_section(app)
+            _register_section(app)
+            _verify_section(app)
+        with page.content:
+            app.layout.initialize_layout_grid(page)
+    return page
+
+
+def _tracker_section():
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Tracker"), v3.VCardText(classes="py-1"):
+        html.Div("{{ connection }}", id="connection", classes="text-body-2 mb-1")
+        v3.VChip(
+            "{{ tool.name }}: {{ tool.state }}",
+            v_for="tool in tools",
+            key="tool.name",
+            id=("'tool-' + tool.name",),
+            color=("tool.colour",),
+            size="small",
+            classes="ma-1",
+            variant="flat",
+        )
+
+
+def _pivot_section(app):
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Probe tip (pivot)"), v3.VCardText(classes="py-1"):
+        _action_button(app, "Start pivot", "start_pivot", "mdi-record")
+        _action_button(app, "Stop pivot", "stop_pivot", "mdi-stop")
+        html.Div("recording: {{ pivot_poses }} poses", v_if="pivot_recording", id="pivot-poses", classes="text-body-2")
+        html.Div(
+            "tip offset (probe frame): ({{ tip_offset.join(', ') }}) mm",
+            v_if="tip_offset.length",
+            id="tip-offset",
+            classes="text-body-2",
+        )
+
+
+def _collect_section(app):
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Patient points"), v3.VCardText(classes="py-1"):
+        _action_button(app, "Collect point", "collect_point", "mdi-map-marker-plus")
+        _action_button(app, "Reference body markers", "add_reference_body_markers", "mdi-target")
+        v3.VSwitch(
+            label=("`auto-collect every ${auto_collect_mm} mm`",),
+            model_value=("auto_collect",),
+            update_modelValue=(lambda value: app.run("set_auto_collect", bool(value)), "[$event]"),
+            disabled=("!auto_collect && (!!blocked.set_auto_collect || !!busy)",),
+            density="compact",
+            hide_details=True,
+            color="primary",
+            id="auto-collect",
+        )
+        html.Div(
+            "probe points: <b id='probe-points'>{{ probe_points }}</b>, marker centres: "
+            "<b id='marker-points'>{{ marker_points }}</b>",
+            classes="text-body-2",
+        )
+        html.Div(
+            "tip (reference frame): ({{ tip_reference.join(', ') }}) mm",
+            v_if="tip_reference.length",
+            id="tip-reference",
+            classes="text-body-2",
+        )
+
+
+def _register_section(app):
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Registration"), v3.VCardText(classes="py-1"):
+        with v3.VRow(dense=True):
+            with v3.VCol(cols=6):
+                v3.VSelect(
+                    label="method",
+                    items=("methods",),
+                    model_value=("method",),
+                    update_modelValue=(lambda value: app.set_choice("method", value), "[$event]"),
+                    density="compact",
+                    hide_details=True,
+                    id="method",
+                )
+            with v3.VCol(cols=6):
+                v3.VSelect(
+                    label="L policy",
+                    items=("policies",),
+                    model_value=("policy",),
+                    update_modelValue=(lambda value: app.set_choice("policy", value), "[$event]"),
+                    disabled=("method !== 'cr-ramsicp'",),
+                    density="compact",
+                    hide_details=True,
+                    id="policy",
+                )
+        _action_button(app, "Register", "register", "mdi-vector-link", click=app.register)
+        with html.Div(v_if="registered", classes="text-body-2"):
+            html.Div("FRE <b id='fre'>{{ fre }}</b> mm, TRE <b id='tre'>{{ tre || '-' }}</b> mm")
+            html.Div("probe points {{ ppc_rms }} mm RMS from the bone<span v-if='scale'>, L = {{ scale }}</span>")
+        html.Div(v_html=("sweep_svg",), id="sweep", classes="my-1")
+        with v3.VTable(v_if="residuals.length", density="compact", height=220, fixed_header=True, id="residuals"):
+            with html.Thead(), html.Tr():
+                html.Th("point")
+                html.Th("residual (mm)")
+                html.Th("include")
+            with html.Tbody(), html.Tr(v_for="row in residuals", key="row.index"):
+                html.Td("{{ row.label }}")
+                html.Td("{{ row.residual }}")
+                with html.Td():
+                    v3.VCheckboxBtn(
+                        model_value=("row.include",),
+                        update_modelValue=(app.set_included, "[row.index, $event]"),
+                        density="compact",
+                        hide_details=True,
+                    )
+
+
+def _verify_section(app):
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Verify and save"), v3.VCardText(classes="py-1"):
+        html.Div("tip to bone surface", classes="text-body-2")
+        html.Div(
+            "{{ tip_to_surface ? tip_to_surface + ' mm' : '-' }}",
+            id="tip-to-surface",
+            style="font-size: 44px; font-weight: 700; line-height: 1.1;",
+        )
+        _action_button(app, "Save scene", "save", "mdi-content-save", click=app.save)

@@ -1,0 +1,92 @@
+"""What the browser panel shows, as plain JSON values for trame's state, read from the two controllers.
+
+Nothing here keeps workflow state: every value is computed from ``NavigationController.status()``,
+``availability()``, ``last_result`` and its parameter node, and from ``BridgeController.status()``. Figures are
+formatted here, once, at the precision the surgeon reads (mm to 2 decimals), so the page and the tests agree.
+"""
+
+from ..core.registration import METHODS, POLICIES
+from ..navigation.controller import ACTIONS
+from ..navigation.navigation import matrix_of
+from .scene_display import residual_points
+from .sweep_plot import result_sweep_svg
+
+#: Colour of a tracking state's chip (Vuetify colour names).
+STATE_COLOURS = {
+    "valid": "success",
+    "missing": "warning",
+    "stale": "warning",
+    "waiting": "grey",
+    "never seen": "grey",
+    "not selected": "grey",
+    "disconnected": "error",
+}
+
+
+def millimetres(value, digits=2):
+    """'1.23' for a number, '' for None: how every distance is shown."""
+    return "" if value is None else f"{value:.{digits}f}"
+
+
+def tool_rows(bridge_status, navigation_status):
+    """Chips for the tracker's devices (as the receiver sees them) and the workflow's ProbeToReference (eq. 2)."""
+    rows = [{"name": device, "state": state} for device, state in bridge_status.tools]
+    probe = navigation_status.tool("ProbeToReference")
+    rows.append({"name": probe.label, "state": probe.state})
+    for row in rows:
+        row["colour"] = STATE_COLOURS.get(row["state"], "grey")
+    return rows
+
+
+def residual_rows(table_node):
+    """One row per probe point of the residual table: index (0-based), label, residual (mm text), include."""
+    if table_node is None or table_node.GetTable() is None:
+        return []
+    _, residuals, included = residual_points(table_node)
+    labels = table_node.GetTable().GetColumnByName("point")
+    return [
+        {
+            "index": row,
+            "label": labels.GetValue(row),
+            "residual": "" if residual != residual else millimetres(residual),  # NaN: left out of the last run
+            "include": bool(include),
+        }
+        for row, (residual, include) in enumerate(zip(residuals, included))
+    ]
+
+
+def panel_state(controller, bridge_status):
+    """The whole panel as a dict of JSON values (trame sends only the keys whose value changed)."""
+    status = controller.status()
+    parameters = controller.parameters
+    result = controller.last_result
+    tip_node = parameters.probeTipToProbe
+    tip_offset = None if tip_node is None else matrix_of(tip_node, "ProbeTipToProbe")[:3, 3]
+    reasons = controller.availability()
+    return {
+        "connection": bridge_status.connection,
+        "tools": tool_rows(bridge_status, status),
+        "pivot_recording": status.pivot_recording,
+        "pivot_poses": status.pivot_poses,
+        "tip_offset": [] if tip_offset is None else [millimetres(value) for value in tip_offset],
+        "tip_reference": [] if status.tip_reference_mm is None else [millimetres(v) for v in status.tip_reference_mm],
+        "auto_collect": status.auto_collect,
+        "auto_collect_mm": parameters.autoCollectDistanceMm,
+        "probe_points": status.probe_points,
+        "marker_points": status.marker_points,
+        "method": parameters.method,
+        "policy": parameters.policy,
+        "methods": list(METHODS),
+        "policies": list(POLICIES),
+        "registered": result is not None,
+        "fre": "" if result is None else millimetres(result.fre_mm),
+        "tre": "" if result is None else millimetres(result.tre_mm),
+        "ppc_rms": "" if result is None else millimetres(result.ppc_rms_mm),
+        "scale": "" if result is None or result.scale is None else f"{result.scale:g}",
+        "residuals": residual_rows(parameters.residualTable),
+        "sweep_svg": "" if result is None else result_sweep_svg(result),
+        "tip_to_surface": millimetres(status.tip_to_surface_mm, 1),
+        "message": status.message,
+        "message_is_error": status.message_is_error,
+        "blocked": {action: reasons.get(action) or "" for action in ACTIONS},
+    }

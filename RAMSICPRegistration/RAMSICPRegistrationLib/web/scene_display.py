@@ -1,0 +1,199 @@
+"""How the browser view draws the workflow's nodes: display nodes only, never the workflow's data.
+
+* the CT in the slice views, the IPC model in bone colour, the segmentation as outlines in the slices only;
+* the probe as a needle model under ``ProbeTipToProbe`` (tip at its origin, shaft back to the probe's origin),
+  so Slicer's displayable managers move it with every tracker pose;
+* the registered probe points as spheres coloured by their residual (green 0 mm to red ``RESIDUAL_SCALE_MM``),
+  a model under ``ReferenceToImage`` made from the residual table; the point lists themselves, in reference
+  coordinates, are hidden (they would float away from the CT);
+* the slices follow the probe tip (``follow_tip``).
+
+Every function takes the scene or node it works on; the nodes it adds are hidden from editors and carry
+``DISPLAY_ATTRIBUTE`` so that they are recognised (and replaced) on the next call.
+"""
+
+import numpy as np
+
+from ..io.vtk_arrays import poly_data
+from ..navigation.navigation import matrix_of
+from ..navigation.scene_render import RESIDUAL_SCALE_MM
+
+#: Attribute marking the display-only nodes this module adds.
+DISPLAY_ATTRIBUTE = "RAMSICP.WebDisplay"
+NEEDLE_RADIUS_MM = 1.2
+TIP_RADIUS_MM = 2.0
+RESIDUAL_SPHERE_RADIUS_MM = 1.5
+BONE_COLOUR = (0.89, 0.85, 0.75)
+NEEDLE_COLOUR = (0.25, 0.75, 1.0)
+#: CT window and level (HU) for the slices: bone and soft tissue both readable.
+CT_WINDOW_LEVEL = (1800.0, 300.0)
+
+
+def style_workflow_nodes(parameters):
+    """Colours and visibility of the workflow's nodes as the surgeon wants them in the browser."""
+    ct = parameters.ctVolume
+    if ct is not None:
+        if ct.GetDisplayNode() is None:
+            ct.CreateDefaultDisplayNodes()
+        display = ct.GetDisplayNode()
+        display.SetAutoWindowLevel(False)
+        display.SetWindowLevel(*CT_WINDOW_LEVEL)
+    model = parameters.ipcModel
+    if model is not None:
+        if model.GetDisplayNode() is None:
+            model.CreateDefaultDisplayNodes()
+        display = model.GetDisplayNode()
+        display.SetColor(*BONE_COLOUR)
+        display.SetOpacity(0.8)
+        display.SetVisibility2D(True)  # the IPC's intersection with each slice
+        display.SetSliceIntersectionThickness(2)
+    segmentation = parameters.segmentation
+    if segmentation is not None and segmentation.GetDisplayNode() is not None:
+        display = segmentation.GetDisplayNode()
+        display.SetVisibility3D(False)
+        display.SetVisibility2DFill(False)
+    for node in (parameters.markersPatient, parameters.probePoints, parameters.targetsPatient):
+        _hide(node)  # reference coordinates: shown registered as the residual spheres instead
+
+
+def _hide(node):
+    if node is None:
+        return
+    if node.GetDisplayNode() is None:
+        node.CreateDefaultDisplayNodes()
+    node.GetDisplayNode().SetVisibility(False)
+
+
+def needle_poly_data(tip_in_probe):
+    """Needle (tube and tip ball) in the tip's frame: from the tip (origin) back to the probe's origin, which lies
+    at ``-tip_in_probe`` (3,) mm, since ``ProbeTipToProbe`` is a translation by ``tip_in_probe``."""
+    from vtkmodules.vtkFiltersCore import vtkAppendPolyData, vtkTubeFilter
+    from vtkmodules.vtkFiltersSources import vtkLineSource, vtkSphereSource
+
+    line = vtkLineSource()
+    line.SetPoint1(0.0, 0.0, 0.0)
+    line.SetPoint2(*(-np.asarray(tip_in_probe, dtype=np.float64)))
+    tube = vtkTubeFilter()
+    tube.SetInputConnection(line.GetOutputPort())
+    tube.SetRadius(NEEDLE_RADIUS_MM)
+    tube.SetNumberOfSides(16)
+    tube.CappingOn()
+    ball = vtkSphereSource()
+    ball.SetRadius(TIP_RADIUS_MM)
+    ball.SetThetaResolution(16)
+    ball.SetPhiResolution(16)
+    append = vtkAppendPolyData()
+    append.AddInputConnection(tube.GetOutputPort())
+    append.AddInputConnection(ball.GetOutputPort())
+    append.Update()
+    return append.GetOutput()
+
+
+def update_needle(scene, probe_tip_to_probe):
+    """The probe needle model under ``probe_tip_to_probe`` (a pivot result); None removes it."""
+    node = _display_node(scene, "ProbeNeedle", "vtkMRMLModelNode")
+    if probe_tip_to_probe is None:
+        scene.RemoveNode(node)
+        return None
+    node.SetAndObservePolyData(needle_poly_data(matrix_of(probe_tip_to_probe, "ProbeTipToProbe")[:3, 3]))
+    node.SetAndObserveTransformNodeID(probe_tip_to_probe.GetID())
+    display = node.GetDisplayNode()
+    display.SetColor(*NEEDLE_COLOUR)
+    display.SetVisibility2D(True)
+    display.SetSliceIntersectionThickness(3)
+    return node
+
+
+def residual_points(table_node):
+    """(points (N, 3) reference mm, residuals (N,) mm, included (N,) bool) of a residual table."""
+    table = table_node.GetTable()
+    rows = table.GetNumberOfRows()
+
+    def column(name):
+        array = table.GetColumnByName(name)
+        return np.array([array.GetValue(row) for row in range(rows)], dtype=np.float64)
+
+    points = np.stack([column(axis) for axis in ("x", "y", "z")], axis=1).reshape(-1, 3)
+    return points, column("residual_mm"), column("include").astype(bool)
+
+
+def update_residual_points(scene, table_node, reference_to_image):
+    """Spheres at the included probe points, under ``reference_to_image``, coloured by residual (mm)."""
+    node = _display_node(scene, "ProbePointResiduals", "vtkMRMLModelNode")
+    if table_node is None or reference_to_image is None:
+        scene.RemoveNode(node)
+        return None
+    from vtkmodules.vtkCommonCore import vtkDoubleArray
+    from vtkmodules.vtkFiltersCore import vtkGlyph3D
+    from vtkmodules.vtkFiltersSources import vtkSphereSource
+
+    points, residuals, included = residual_points(table_node)
+    keep = included & np.isfinite(residuals)
+    centres = poly_data(points[keep])
+    scalars = vtkDoubleArray()
+    scalars.SetName("residual_mm")
+    for value in residuals[keep]:
+        scalars.InsertNextValue(float(value))
+    centres.GetPointData().SetScalars(scalars)
+    sphere = vtkSphereSource()
+    sphere.SetRadius(RESIDUAL_SPHERE_RADIUS_MM)
+    glyphs = vtkGlyph3D()  # each sphere's points carry its centre's residual
+    glyphs.SetInputData(centres)
+    glyphs.SetSourceConnection(sphere.GetOutputPort())
+    glyphs.ScalingOff()
+    glyphs.SetColorModeToColorByScalar()
+    glyphs.Update()
+    node.SetAndObservePolyData(glyphs.GetOutput())
+    node.SetAndObserveTransformNodeID(reference_to_image.GetID())
+    display = node.GetDisplayNode()
+    display.SetActiveScalarName("residual_mm")
+    display.SetAndObserveColorNodeID(_residual_colours(scene).GetID())
+    display.SetScalarRangeFlag(display.UseManualScalarRange)
+    display.SetScalarRange(0.0, RESIDUAL_SCALE_MM)
+    display.SetScalarVisibility(True)
+    display.SetVisibility2D(False)
+    return node
+
+
+def _residual_colours(scene):
+    """A green-to-red colour table (residual 0 to ``RESIDUAL_SCALE_MM``), added once."""
+    node = _find(scene, "ResidualColours")
+    if node is not None:
+        return node
+    node = scene.AddNewNodeByClass("vtkMRMLColorTableNode", "ResidualColours")
+    node.SetAttribute(DISPLAY_ATTRIBUTE, "1")
+    node.SetHideFromEditors(True)
+    node.SetTypeToUser()
+    steps = 64
+    node.SetNumberOfColors(steps)
+    for index in range(steps):
+        fraction = index / (steps - 1)
+        node.SetColor(
+            index, f"{fraction * RESIDUAL_SCALE_MM:.2f} mm", min(1.0, 2 * fraction), min(1.0, 2 - 2 * fraction), 0.1
+        )
+    return node
+
+
+def follow_tip(scene, position):
+    """Move every slice (axial, coronal, sagittal) through ``position`` (3,) RAS mm, as Slicer's reslice driver."""
+    x, y, z = (float(value) for value in position)
+    for index in range(scene.GetNumberOfNodesByClass("vtkMRMLSliceNode")):
+        scene.GetNthNodeByClass(index, "vtkMRMLSliceNode").JumpSliceByOffsetting(x, y, z)
+
+
+def _find(scene, name):
+    for index in range(scene.GetNumberOfNodesByClass("vtkMRMLNode")):
+        node = scene.GetNthNodeByClass(index, "vtkMRMLNode")
+        if node.GetAttribute(DISPLAY_ATTRIBUTE) and node.GetName() == name:
+            return node
+    return None
+
+
+def _display_node(scene, name, node_class):
+    node = _find(scene, name)
+    if node is None:
+        node = scene.AddNewNodeByClass(node_class, name)
+        node.SetAttribute(DISPLAY_ATTRIBUTE, "1")
+        node.SetHideFromEditors(True)
+        node.CreateDefaultDisplayNodes()
+    return node

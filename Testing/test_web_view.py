@@ -1,0 +1,248 @@
+"""The browser navigation view end to end, as a person uses it: ``ramsicp web --demo`` in its own process, a real
+headless Chromium (Debian's, through Playwright), and a real tracker chain (Vega simulator -> our NDI driver -> our
+PLUS-compatible OpenIGTLink server) whose probe this test moves by hand (``HandHeldProbe``).
+
+One server and one page serve every check (the demo CT takes half a minute to build); the tests run in file order,
+each starting from what the previous ones left, as a surgeon's session does: the page loads; the pivot done from
+the page gives the simulator's tip offset; 40 touched points collected from the page register with the FRE and TRE
+that ``register()`` computes in Python on the saved scene; the 3D view changes when the probe moves; the tracker
+server going away shows disconnected / stale, and coming back shows valid again. Every wait is for a condition on
+the page, with generous timeouts for a loaded machine; nothing sleeps.
+
+``RAMSICP_DOCUMENTATION_SCREENSHOT=1`` writes the page as ``Documentation/web_view.png`` (the README's picture).
+"""
+
+import io
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+if sys.version_info < (3, 10):
+    pytest.skip("trame-slicer and slicer-core need Python >= 3.10", allow_module_level=True)
+
+from OpenIGTLinkBridgeLib.live_scenario import (  # noqa: E402
+    PROBE_TIP_MM,
+    HandHeldProbe,
+    default_touch_points,
+    serve_hand_held_probe,
+    serve_simulator,
+)
+from RAMSICPRegistrationLib.web.headless import (  # noqa: E402
+    launch_chromium,
+    start_web_view,
+    stop_web_view,
+    view_image,
+    wait_for_views,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMEOUT_MS = 60_000
+NUMBER = r"-?\d+\.\d+"
+
+
+class Session:
+    """The running view, its page and the tracker the test holds in its hand."""
+
+    def __init__(self, tmp_path):
+        self.output = tmp_path / "output"
+        self.probe = HandHeldProbe()
+        self.points = default_touch_points()  # the demo patient's 40 touches, reference coordinates (mm)
+        self.probe.touch(self.points[0])
+        self.simulator, self.tracker = serve_hand_held_probe(self.probe)
+        self.tracker_port = self.tracker.address[1]
+        self.log = tmp_path / "web.log"
+        self.process, self.url = start_web_view(
+            ["--demo", "--tracker", f"127.0.0.1:{self.tracker_port}", "--port", "0", "--output", self.output],
+            log_path=self.log,
+        )
+        from playwright.sync_api import sync_playwright
+
+        self.playwright = sync_playwright().start()
+        self.browser = launch_chromium(self.playwright)
+        self.page = self.browser.new_page(viewport={"width": 1500, "height": 950})
+        self.page_errors = []
+        self.page.on("pageerror", lambda error: self.page_errors.append(str(error)))
+        self.page.on("console", lambda message: message.type == "error" and self.page_errors.append(message.text))
+        self.page.set_default_timeout(TIMEOUT_MS)
+        self.page.goto(self.url)
+
+    def close(self):
+        self.browser.close()
+        self.playwright.stop()
+        code = stop_web_view(self.process)
+        self.tracker.stop()
+        self.simulator.stop()
+        return code
+
+    # -- reading the page --------------------------------------------------------------------------------------
+    def text(self, selector):
+        return self.page.locator(selector).inner_text()
+
+    def numbers(self, selector):
+        return np.array([float(value) for value in re.findall(NUMBER, self.text(selector))])
+
+    def wait_for_text(self, selector, pattern):
+        """Wait until the element's text matches the regular expression ``pattern``."""
+        self.page.wait_for_function(
+            "([selector, pattern]) => { const element = document.querySelector(selector);"
+            " return element !== null && new RegExp(pattern).test(element.innerText); }",
+            arg=[selector, pattern],
+        )
+
+    def wait_for_tool(self, name, state):
+        self.wait_for_text(f"#tool-{name}", f"{name}: {state}$")
+
+    def wait_for_tip_at(self, point, tolerance_mm=0.1):
+        """Wait until the page's tip readout (reference frame) shows ``point``."""
+        self.page.wait_for_function(
+            """([point, tolerance]) => {
+                const element = document.querySelector('#tip-reference');
+                if (element === null) return false;
+                const values = (element.innerText.match(/-?\\d+\\.\\d+/g) || []).map(Number);
+                return values.length === 3 && values.every((value, axis) => Math.abs(value - point[axis]) <= tolerance);
+            }""",
+            arg=[[float(value) for value in point], tolerance_mm],
+        )
+
+    def click(self, name):
+        button = self.page.get_by_role("button", name=name)
+        button.wait_for()
+        self.page.wait_for_function("(button) => !button.disabled", arg=button.element_handle())
+        button.click()
+
+    def view_pixels(self, view):
+        from PIL import Image
+
+        return np.asarray(Image.open(io.BytesIO(view_image(self.page, view).screenshot())).convert("RGB"), dtype=int)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    session = Session(tmp_path_factory.mktemp("web_view"))
+    try:
+        yield session
+    finally:
+        code = session.close()
+        assert code == 0, f"ramsicp web exited with {code}; its log: {session.log.read_text()[-3000:]}"
+
+
+def changed_fraction(before, after, threshold=40):
+    """Fraction of pixels whose colour changed by more than ``threshold`` (of 255) in some channel."""
+    return float(np.mean(np.abs(after - before).max(axis=2) > threshold))
+
+
+def test_the_page_loads_and_shows_the_four_views_and_the_tracker(session):
+    wait_for_views(session.page, timeout_ms=180_000)
+    for name in ("ReferenceToTracker", "ProbeToTracker", "ProbeToReference"):
+        session.wait_for_tool(name, "valid")
+    assert session.text("#connection") == f"connected to 127.0.0.1:{session.tracker_port}"
+    for view in ("ThreeD", "Red", "Green", "Yellow"):
+        pixels = session.view_pixels(view)
+        assert pixels.shape[0] > 150 and pixels.shape[1] > 150, f"{view} view is {pixels.shape[:2]} pixels"
+        assert pixels.std() > 10, f"the {view} view is blank"  # the CT or the bone is drawn
+    assert session.page.locator("input[type=file]").count() == 0, "the page must offer no file to open"
+    assert session.text("#marker-points") == "4"  # the demo's reference-body marker centres
+
+
+def test_a_pivot_from_the_page_gives_the_simulated_tip_offset(session):
+    session.probe.pivot(session.points[0])
+    session.click("Start pivot")
+    session.wait_for_text("#pivot-poses", r"recording: ([3-9]\d\d|\d{4,}) poses")  # 300 poses: 5 s at 60 Hz
+    session.click("Stop pivot")
+    session.wait_for_text("#tip-offset", NUMBER)
+    tip = session.numbers("#tip-offset")
+    # The poses cross the NDI protocol (0.01 mm, 1e-4 quaternion) and OpenIGTLink; the tip is exact to that.
+    assert np.abs(tip - PROBE_TIP_MM).max() <= 0.05, f"page shows tip {tip}, the simulator's is {PROBE_TIP_MM}"
+    assert "pivot: tip at 110.0 mm" in session.text("#message")
+
+
+def test_forty_touches_collected_and_registered_from_the_page_give_the_python_result(session):
+    from RAMSICPRegistrationLib.core.registration import register
+    from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
+    from RAMSICPRegistrationLib.io.point_files import read_points
+
+    for number, point in enumerate(session.points, start=1):
+        session.probe.touch(point)
+        session.wait_for_tip_at(point)
+        session.click("Collect point")
+        session.wait_for_text("#probe-points", f"^{number}$")
+    session.click("Register")
+    session.wait_for_text("#fre", NUMBER)
+    page_figures = (session.text("#fre"), session.text("#tre"))
+    assert session.page.locator("#residuals tbody tr").count() == 40
+    assert session.page.locator("#sweep svg polyline").count() == 2  # RMS and TRE against L
+
+    session.click("Save scene")
+    session.wait_for_text("#message", "scene saved")
+    saved = sorted(session.output.glob("scene-*/navigation.mrml"))
+    assert saved, f"no scene in {session.output}"
+    nodes = saved_workflow_nodes(saved[-1])
+    collected = read_points(session.output / "ProbePoints.mrk.json").points  # the autosave, as collected
+    assert np.abs(collected - session.points).max() < 0.05, "collected points differ from the touches"
+    result = register(
+        SurfaceIndex(nodes["ipcModel"]),
+        collected,
+        nodes["markersImage"],
+        nodes["markersPatient"],
+        nodes["targetsImage"],
+        nodes["targetsPatient"],
+        method="cr-ramsicp",
+        sweep=True,
+        policy="rms-plateau",
+    )
+    assert page_figures == (f"{result.fre_mm:.2f}", f"{result.tre_mm:.2f}")
+    assert result.tre_mm < 1.0, f"TRE {result.tre_mm:.2f} mm on exact touches"
+
+
+def saved_workflow_nodes(path):
+    """The registration's inputs (N, 3) from a scene saved by the page, read with slicer-core."""
+    import slicer
+
+    from RAMSICPRegistrationLib.navigation.navigation import load_scene, points_of
+    from RAMSICPRegistrationLib.navigation.parameters import Parameters, get_parameter_node
+
+    scene = slicer.vtkMRMLScene()
+    scene.RegisterNodeClass(slicer.vtkMRMLSegmentEditorNode())  # Slicer's and trame-slicer's scenes know it
+    parameters = Parameters(get_parameter_node(load_scene(scene, path)))
+    names = ("ipcModel", "markersImage", "markersPatient", "targetsImage", "targetsPatient")
+    return {name: points_of(getattr(parameters, name), name) for name in names}
+
+
+def test_the_3d_view_and_the_slices_follow_the_probe(session):
+    session.page.wait_for_function("() => document.querySelector('#tip-to-surface').innerText.endsWith('mm')")
+    before = {view: session.view_pixels(view) for view in ("ThreeD", "Red")}
+    target = session.points[20]  # 20 touches on: another part of the shaft
+    session.probe.touch(target)
+    session.wait_for_tip_at(target)
+    session.page.wait_for_function(
+        "(reading) => document.querySelector('#tip-to-surface').innerText !== reading",
+        arg=session.text("#tip-to-surface"),
+    )
+    for view in ("ThreeD", "Red"):
+        fraction = 0.0
+        for _ in range(100):  # the image follows within a few frames; compare until it has arrived
+            fraction = changed_fraction(before[view], session.view_pixels(view))
+            if fraction > 0.002:
+                break
+            session.page.wait_for_timeout(100)
+        assert fraction > 0.002, f"the {view} view did not change when the probe moved ({fraction:.4f})"
+    distance = float(session.text("#tip-to-surface").split()[0])
+    assert distance < 1.0, f"the tip on the bone reads {distance} mm from the surface"
+    if os.environ.get("RAMSICP_DOCUMENTATION_SCREENSHOT"):
+        session.page.screenshot(path=str(ROOT / "Documentation" / "web_view.png"))
+
+
+def test_a_tracker_server_that_stops_shows_disconnected_then_valid_when_it_returns(session):
+    session.tracker.stop()
+    session.wait_for_tool("ProbeToTracker", "disconnected")
+    session.wait_for_tool("ReferenceToTracker", "disconnected")
+    session.wait_for_tool("ProbeToReference", "stale")
+    assert session.page.get_by_role("button", name="Collect point").is_disabled()
+    session.tracker = serve_simulator(session.simulator, port=session.tracker_port)
+    for name in ("ReferenceToTracker", "ProbeToTracker", "ProbeToReference"):
+        session.wait_for_tool(name, "valid")
+    assert session.page.get_by_role("button", name="Collect point").is_enabled()
