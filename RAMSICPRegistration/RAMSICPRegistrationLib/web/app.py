@@ -226,11 +226,11 @@ class NavigationWebApp:
     def run(self, action, *args):
         """Run a controller action as the page's buttons do, then refresh the panel. Poses that arrived while the
         event loop was busy (rendering, a save) are applied first: the action works on the newest pose, and a
-        tracker that is streaming is never judged stale because this process was late to read it."""
+        tracker that is streaming is never judged stale because this process was late to read it. Returns None:
+        trame sends a handler's result to the page, and the page needs none (what happened is in the panel)."""
         self.bridge.poll()
-        result = self.controller.run(action, *args)
+        self.controller.run(action, *args)
         self.refresh_panel()
-        return result
 
     def run_after_showing_busy(self, action, *args):
         """For a long action (registration, saving): show 'busy' on the page first, then run it."""

@@ -92,6 +92,105 @@ def stop_web_view(process, timeout_s=20.0):
     return process.returncode
 
 
+NUMBER = r"-?\d+\.\d+"
+
+
+class NavigationPage:
+    """The navigation page in a Playwright ``Page``, read and clicked as a person does; every wait is for what the
+    page shows (``timeout_ms`` each), never a fixed sleep."""
+
+    def __init__(self, page, timeout_ms=60_000):
+        self.page = page
+        page.set_default_timeout(timeout_ms)
+
+    def text(self, selector):
+        return self.page.locator(selector).inner_text()
+
+    def numbers(self, selector):
+        """The decimal numbers in an element's text, (K,) array."""
+        import re
+
+        import numpy as np
+
+        return np.array([float(value) for value in re.findall(NUMBER, self.text(selector))])
+
+    def wait_for_text(self, selector, pattern):
+        """Wait until the element's text matches the regular expression ``pattern``."""
+        self.page.wait_for_function(
+            "([selector, pattern]) => { const element = document.querySelector(selector);"
+            " return element !== null && new RegExp(pattern).test(element.innerText); }",
+            arg=[selector, pattern],
+        )
+
+    def wait_for_count(self, selector, minimum):
+        """Wait until the first whole number in the element's text is at least ``minimum``."""
+        self.page.wait_for_function(
+            r"""([selector, minimum]) => { const element = document.querySelector(selector);
+                const found = element && element.innerText.match(/\d+/);
+                return Boolean(found) && Number(found[0]) >= minimum; }""",
+            arg=[selector, minimum],
+        )
+
+    def wait_for_tool(self, name, state):
+        """Wait until a tracking chip reads e.g. 'ProbeToTracker: valid'."""
+        self.wait_for_text(f"#tool-{name}", f"{name}: {state}$")
+
+    def wait_for_tip_at(self, point, tolerance_mm=0.1):
+        """Wait until the tip readout (reference frame, mm) shows ``point`` (3,)."""
+        self.page.wait_for_function(
+            """([point, tolerance]) => {
+                const element = document.querySelector('#tip-reference');
+                if (element === null) return false;
+                const values = (element.innerText.match(/-?\\d+\\.\\d+/g) || []).map(Number);
+                return values.length === 3 && values.every((value, axis) => Math.abs(value - point[axis]) <= tolerance);
+            }""",
+            arg=[[float(value) for value in point], tolerance_mm],
+        )
+
+    def button(self, name):
+        return self.page.get_by_role("button", name=name)
+
+    def click(self, name):
+        """Click a button once the page enables it."""
+        button = self.button(name)
+        button.wait_for()
+        self.page.wait_for_function("(button) => !button.disabled", arg=button.element_handle())
+        button.click()
+
+    def view_pixels(self, view):
+        """(H, W, 3) int RGB of a view's image as the page shows it."""
+        import io
+
+        import numpy as np
+        from PIL import Image
+
+        return np.asarray(Image.open(io.BytesIO(view_image(self.page, view).screenshot())).convert("RGB"), dtype=int)
+
+    # -- the workflow, as a surgeon clicks it ------------------------------------------------------------------
+    def pivot(self, probe, divot, poses=300):
+        """Swivel ``probe`` (a HandHeldProbe) in ``divot`` while the page records ``poses`` poses."""
+        probe.pivot(divot)
+        self.click("Start pivot")
+        self.wait_for_count("#pivot-poses", poses)
+        self.click("Stop pivot")
+        self.wait_for_text("#tip-offset", NUMBER)
+
+    def collect(self, probe, points):
+        """Touch each point and collect it from the page, waiting for the tip readout and the point count."""
+        start = int(self.text("#probe-points"))
+        for number, point in enumerate(points, start=start + 1):
+            probe.touch(point)
+            self.wait_for_tip_at(point)
+            self.click("Collect point")
+            self.wait_for_text("#probe-points", f"^{number}$")
+
+    def register(self):
+        """Register from the page; returns the (FRE, TRE) texts it shows."""
+        self.click("Register")
+        self.wait_for_text("#fre", NUMBER)
+        return self.text("#fre"), self.text("#tre")
+
+
 def view_image(page, view):
     """Playwright locator of a view's ``<img>``: view is 'ThreeD', 'Red', 'Green' or 'Yellow'."""
     return page.locator(f"div:has(> #view-{view}) img.image-display-area")

@@ -24,8 +24,11 @@ STATE_COLOURS = {
 
 
 def millimetres(value, digits=2):
-    """'1.23' for a number, '' for None: how every distance is shown."""
-    return "" if value is None else f"{value:.{digits}f}"
+    """'1.23' for a number, '' for None: how every distance is shown (never '-0.00')."""
+    if value is None:
+        return ""
+    text = f"{value:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
 
 
 def tool_rows(bridge_status, navigation_status):
