@@ -170,9 +170,11 @@ def test_the_3d_view_and_the_slices_follow_the_probe(session):
     target = session.points[20]  # 20 touches on: another part of the shaft
     session.probe.touch(target)
     session.wait_for_tip_at(target)
-    # The needle, 110 mm by 2.4 mm, partly behind the bone (80 % opaque), moves by several centimetres: a few
-    # thousand pixels of the 3D view change. The axial slice jumps to the new tip height: most of it changes.
-    for view, least in (("ThreeD", 0.0005), ("Red", 0.05)):
+    # The needle, 110 mm by 2.4 mm, moves by several centimetres; behind the bone (80 % opaque) its change is
+    # under the threshold, so only its free part counts: at least 0.05 % of the 3D view. The axial slice jumps to
+    # the new tip height: the bone's cross-section changes shape and place, far more than the needle's 2.4 mm dot
+    # (0.02 % of the view): at least 1 %.
+    for view, least in (("ThreeD", 0.0005), ("Red", 0.01)):
         fraction = 0.0
         for _ in range(100):  # the image follows within a few frames; compare until it has arrived
             fraction = changed_fraction(still[1][view], session.view_pixels(view))

@@ -790,9 +790,18 @@ def _run_web(arguments):
         raise ValueError(
             "the browser view needs trame-slicer: pip install 'ramsicp-navigator[web]' (Python >= 3.10)"
         ) from None
-    from .web.app import NavigationWebApp, check_port_free, parse_tracker_address
+    from .web.app import (
+        NavigationWebApp,
+        check_output_directory,
+        check_port_free,
+        check_scene_path,
+        parse_tracker_address,
+    )
 
     tracker = None if arguments.tracker is None else parse_tracker_address(arguments.tracker)
+    if arguments.scene is not None:
+        check_scene_path(arguments.scene)
+    check_output_directory(arguments.output)
     if not 0 <= arguments.port <= 65535:
         raise ValueError(f"--port {arguments.port}: give a port from 1 to 65535 (0: any free port)")
     check_port_free(arguments.host, arguments.port)  # before the slow set-up, so a busy port fails at once

@@ -16,6 +16,7 @@ on the command line, in a new sub-folder per save.
 """
 
 import asyncio
+import itertools
 import logging
 import os
 import socket
@@ -41,6 +42,8 @@ LAYOUT_ID = "RAMSICP navigation"
 #: The browser demo's simulated probe: a 10 s pivot, then each of the 40 touches held for 1.2 s; again and again.
 DEMO_SIMULATOR = {"pivot_s": 10.0, "dwell_s": 1.2, "move_s": 0.4, "loop": True}
 TRACKER_NODES = {"probeToReference": "ProbeToReference", "referenceToTracker": "ReferenceToTracker"}
+SCENE_SUFFIXES = (".mrb", ".mrml")
+_SERVER_NUMBERS = itertools.count(1)
 
 
 def configure_environment():
@@ -66,6 +69,31 @@ def check_port_free(host, port):
         raise OSError(
             f"cannot serve the page on {host}:{port} ({error.strerror or error}); choose another --port"
         ) from None
+
+
+def check_scene_path(path):
+    """A scene file the command line names: ValueError when it is missing, a folder, or not a Slicer scene."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"--scene {path}: is a folder; give a .mrb or .mrml file")
+    if not path.is_file():
+        raise ValueError(f"--scene {path}: no such file")
+    if path.suffix.lower() not in SCENE_SUFFIXES:
+        raise ValueError(f"--scene {path}: give a Slicer scene, .mrb or .mrml")
+    return path
+
+
+def check_output_directory(path):
+    """The folder for autosaves and saved scenes, created and written to once; OSError saying so when it cannot
+    be (a file is there, no permission, a full disk): before anything is collected, not after."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
+            pass
+    except OSError as error:
+        raise OSError(f"--output {path}: cannot write there ({error.strerror or error}); choose another folder") from None
+    return path
 
 
 def navigation_layout():
@@ -100,7 +128,7 @@ class NavigationWebApp:
         from trame_slicer.rca_view import register_rca_factories
 
         self.output_directory = Path(output_directory)
-        self.server = get_server(None, client_type="vue3")
+        self.server = get_server(f"RAMSICP navigation {next(_SERVER_NUMBERS)}", client_type="vue3")
         self.slicer = SlicerApp()
         self.scene = self.slicer.scene
         # blur_fps=None: a second screen nobody hovers renders as fast as the focused one.
@@ -128,11 +156,7 @@ class NavigationWebApp:
     def load_scene(self, path):
         """Read a scene saved by Slicer or by this view (.mrb, or .mrml with its data files); before
         ``start_workflow``. ValueError when the file is missing, a folder or unreadable."""
-        path = Path(path)
-        if path.is_dir():
-            raise ValueError(f"--scene {path}: is a folder; give a .mrb or .mrml file")
-        if not path.is_file():
-            raise ValueError(f"--scene {path}: no such file")
+        path = check_scene_path(path)
         try:
             if path.suffix.lower() == ".mrb":
                 with tempfile.TemporaryDirectory() as folder, zipfile.ZipFile(path) as archive:
@@ -141,10 +165,8 @@ class NavigationWebApp:
                     if not scenes:
                         raise ValueError(f"--scene {path}: the archive holds no .mrml scene")
                     load_scene(self.scene, scenes[0])
-            elif path.suffix.lower() == ".mrml":
-                load_scene(self.scene, path)
             else:
-                raise ValueError(f"--scene {path}: give a Slicer scene, .mrb or .mrml")
+                load_scene(self.scene, path)
         except (RuntimeError, zipfile.BadZipFile, OSError) as error:
             raise ValueError(f"--scene {path}: cannot read it ({error})") from None
 
@@ -152,7 +174,7 @@ class NavigationWebApp:
         """Create the controllers on the scene, listen to the navigation controller and show its nodes."""
         from OpenIGTLinkBridgeLib.bridge_controller import BridgeController
 
-        self.output_directory.mkdir(parents=True, exist_ok=True)
+        check_output_directory(self.output_directory)
         self.controller = NavigationController(self.scene, autosave_directory=self.output_directory)
         options = DEMO_SIMULATOR if simulator_options is None else simulator_options
         self.bridge = BridgeController(self.scene, simulator_options=options)

@@ -1,0 +1,257 @@
+"""The browser view's parts without a browser, each against an answer computed by hand: the sweep plot's pixels,
+the panel's figures, the residual spheres and the needle, the command line's bad input, scene files, the
+controller's pose events and tip position, and the simulated probe's pivot phase."""
+
+import socket
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+
+from OpenIGTLinkBridgeLib.live_scenario import (
+    PROBE_TIP_MM,
+    HandHeldProbe,
+    TouchScript,
+    pivot_pose,
+)
+from RAMSICPRegistrationLib.core.pivot import pivot_calibration
+from RAMSICPRegistrationLib.web.sweep_plot import sweep_svg
+
+from conftest import headless_scene
+
+needs_slicer = pytest.mark.skipif(sys.version_info < (3, 10), reason="slicer-core and trame-slicer need Python >= 3.10")
+
+
+# -- pure parts ----------------------------------------------------------------------------------------------------
+def test_sweep_plot_puts_each_value_at_its_pixel():
+    svg = sweep_svg([1.0, 2.0, 3.0], {"RMS": [1.0, 0.5, 1.0], "TRE": None}, chosen_scale=2.0)
+    # x from 38 (L = 1) to 290 (L = 3); y from 120 (0 mm) up to 12 (1.1 x the largest value, 1.1 mm).
+    assert '<polyline points="38.0,21.8 164.0,70.9 290.0,21.8"' in svg
+    assert svg.count("<polyline") == 1, "a series without values is left out"
+    assert 'x1="164.0" y1="12" x2="164.0" y2="120"' in svg, "the chosen L is marked"
+    assert sweep_svg([], {"RMS": []}) == ""
+
+
+def test_figures_are_shown_to_the_hundredth_of_a_millimetre_and_never_as_minus_zero():
+    from RAMSICPRegistrationLib.web.panel_state import millimetres
+
+    assert millimetres(0.125) == "0.12" and millimetres(1.0 / 3.0, 1) == "0.3"
+    assert millimetres(-0.001) == "0.00" and millimetres(-0.006) == "-0.01"
+    assert millimetres(None) == ""
+
+
+def test_the_pivot_phase_swivels_about_a_fixed_tip_that_a_pivot_calibration_recovers():
+    points = np.array([[10.0, 20.0, 30.0], [40.0, 50.0, 60.0]])
+    script = TouchScript(points, np.eye(4), dwell_s=1.0, move_s=0.5, start_s=0.3, pivot_s=4.0, loop=True)
+    times = np.linspace(0.3, 4.29, 120)
+    poses = np.array([script.probe_to_reference(t) for t in times])
+    tips = poses[:, :3, :3] @ PROBE_TIP_MM + poses[:, :3, 3]
+    assert np.abs(tips - points[0]).max() < 1e-9, "the tip must rest in the divot while the probe swivels"
+    result = pivot_calibration(poses)
+    np.testing.assert_allclose(result.tip_in_probe, PROBE_TIP_MM, atol=1e-6)
+    assert result.rotation_range_deg > 30
+    after_pivot = script.probe_to_reference(0.3 + 4.0 + 1.5 + 0.5)  # dwelling on the second point
+    np.testing.assert_allclose(after_pivot[:3, :3] @ PROBE_TIP_MM + after_pivot[:3, 3], points[1], atol=1e-9)
+    np.testing.assert_allclose(script.probe_to_reference(1.0 + script.cycle_s), script.probe_to_reference(1.0))
+
+
+def test_a_hand_held_probe_puts_its_tip_where_it_is_told_in_tracker_coordinates():
+    reference_to_tracker = np.eye(4)
+    reference_to_tracker[:3, 3] = (5.0, -7.0, -1500.0)
+    probe = HandHeldProbe(reference_to_tracker)
+    point = np.array([1.0, 2.0, 3.0])
+    probe.touch(point)
+    probe_to_tracker = probe.poses(0.0)[probe.probe_rom]
+    np.testing.assert_allclose(
+        probe_to_tracker[:3, :3] @ PROBE_TIP_MM + probe_to_tracker[:3, 3], point + (5, -7, -1500)
+    )
+    probe.slide(point, point + (0.0, 40.0, 0.0), period_s=2.0)
+    halfway = probe.poses(0.5)[probe.probe_rom]  # a quarter period: half-way along the 40 mm
+    np.testing.assert_allclose(halfway[:3, :3] @ PROBE_TIP_MM + halfway[:3, 3], point + (5, 13, -1500), atol=1e-9)
+    probe.pivot(point)
+    np.testing.assert_allclose(probe.poses(1.7)[probe.probe_rom], reference_to_tracker @ pivot_pose(1.7, point))
+
+
+# -- the command line's bad input: one line, exit code 2 -------------------------------------------------------------
+@needs_slicer
+@pytest.mark.parametrize(
+    "arguments, expected",
+    [
+        (["--tracker", "localhost"], "--tracker 'localhost': give HOST:PORT"),
+        (["--tracker", "127.0.0.1:99999"], "give HOST:PORT"),
+        (["--scene", "{tmp}/missing.mrb"], "missing.mrb: no such file"),
+        (["--scene", "{tmp}"], "is a folder"),
+        (["--scene", "{tmp}/notes.txt"], "give a Slicer scene, .mrb or .mrml"),
+        (["--output", "{tmp}/notes.txt"], "--output"),
+        (["--port", "70000"], "--port 70000"),
+    ],
+)
+def test_bad_web_arguments_are_one_line_and_exit_code_2(tmp_path, capsys, arguments, expected):
+    from RAMSICPRegistrationLib.cli import main
+
+    (tmp_path / "notes.txt").write_text("not a scene")
+    arguments = [argument.replace("{tmp}", str(tmp_path)) for argument in arguments]
+    assert main(["web", "--port", "0", "--output", str(tmp_path / "out"), *arguments]) == 2
+    error = capsys.readouterr().err.strip()
+    assert expected in error and error.startswith("ramsicp web: error:") and "\n" not in error, error
+
+
+@needs_slicer
+def test_a_busy_port_is_reported_before_anything_starts(tmp_path, capsys):
+    from RAMSICPRegistrationLib.cli import main
+
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        assert main(["web", "--port", str(port), "--output", str(tmp_path)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert f"cannot serve the page on 127.0.0.1:{port}" in error and "choose another --port" in error
+
+
+@needs_slicer
+def test_demo_and_scene_exclude_each_other():
+    from RAMSICPRegistrationLib.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["web", "--demo", "--scene", "x.mrb"])
+    assert exit_info.value.code == 2
+
+
+# -- MRML: the controller's additions, the display nodes, scene files ------------------------------------------------
+@pytest.fixture
+def scene():
+    slicer = pytest.importorskip("slicer") if sys.version_info < (3, 10) else __import__("slicer")
+    return slicer.vtkMRMLScene()
+
+
+@needs_slicer
+def test_the_controller_reports_each_pose_and_the_tip_in_world_and_reference_coordinates(scene):
+    from RAMSICPRegistrationLib.navigation.controller import NavigationController
+
+    controller = NavigationController(scene)
+    try:
+        check_pose_events_and_tip(controller, scene)
+    finally:
+        controller.close()  # no observer may outlive the test: a collected scene would call into it
+
+
+def check_pose_events_and_tip(controller, scene):
+    from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
+    from RAMSICPRegistrationLib.navigation.navigation import set_matrix
+
+    events = []
+    controller.add_listener(lambda event, data: events.append((event, data)))
+    probe = controller.steps.transform_node("ProbeToReference")
+    controller.parameters.probeToReference = probe
+    probe_pose = make_transform(rotation_about_axis((0.0, 0.0, 1.0), np.pi / 2), (10.0, 20.0, 30.0))
+    set_matrix(probe, probe_pose)
+    set_matrix(probe, probe_pose)
+    assert events.count(("pose", "ProbeToReference")) == 2, "every tracker update is a pose, even the same one"
+    assert controller.tip_position() is None and controller.status().tip_reference_mm is None  # no pivot yet
+    tip = controller.steps.transform_node("ProbeTipToProbe")
+    set_matrix(tip, make_transform(np.eye(3), (0.0, 0.0, -100.0)))
+    tip.SetAndObserveTransformNodeID(probe.GetID())
+    controller.parameters.probeTipToProbe = tip
+    reference_to_image = controller.steps.transform_node("ReferenceToImage")
+    set_matrix(reference_to_image, make_transform(np.eye(3), (1.0, 2.0, 3.0)))
+    probe.SetAndObserveTransformNodeID(reference_to_image.GetID())
+    set_matrix(probe, probe_pose)
+    # The tip (0, 0, -100) in the probe, turned 90 degrees about z (z stays), moved by (10, 20, 30): (10, 20, -70).
+    np.testing.assert_allclose(controller.status().tip_reference_mm, (10.0, 20.0, -70.0), atol=1e-9)
+    np.testing.assert_allclose(controller.tip_position(), (11.0, 22.0, -67.0), atol=1e-9)  # + ReferenceToImage
+
+
+def residual_table(scene, rows):
+    """A residual table as ``NavigationLogic.register`` writes it: (label, x, y, z, residual, include) rows."""
+    from vtkmodules.vtkCommonCore import vtkDoubleArray, vtkIntArray, vtkStringArray
+    from vtkmodules.vtkCommonDataModel import vtkTable
+
+    table = vtkTable()
+    columns = [vtkStringArray()] + [vtkDoubleArray() for _ in range(4)] + [vtkIntArray()]
+    for array, name in zip(columns, ("point", "x", "y", "z", "residual_mm", "include")):
+        array.SetName(name)
+        table.AddColumn(array)
+    table.SetNumberOfRows(len(rows))
+    for index, row in enumerate(rows):
+        for column, value in enumerate(row):
+            columns[column].SetValue(index, value)
+    node = scene.AddNewNodeByClass("vtkMRMLTableNode", "RegistrationResiduals")
+    node.SetAndObserveTable(table)
+    return node
+
+
+@needs_slicer
+def test_residual_spheres_and_rows_follow_the_table(scene):
+    from RAMSICPRegistrationLib.web.panel_state import residual_rows
+    from RAMSICPRegistrationLib.web.scene_display import RESIDUAL_SPHERE_RADIUS_MM, update_residual_points
+
+    table = residual_table(
+        scene,
+        [("P1", 0.0, 0.0, 0.0, 0.25, 1), ("P2", 50.0, 0.0, 0.0, float("nan"), 0), ("P3", 0.0, 80.0, 0.0, 0.75, 1)],
+    )
+    assert residual_rows(table) == [
+        {"index": 0, "label": "P1", "residual": "0.25", "include": True},
+        {"index": 1, "label": "P2", "residual": "", "include": False},
+        {"index": 2, "label": "P3", "residual": "0.75", "include": True},
+    ]
+    registration = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToImage")
+    model = update_residual_points(scene, table, registration)
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    data = model.GetPolyData()
+    points = vtk_to_numpy(data.GetPoints().GetData())
+    residuals = vtk_to_numpy(data.GetPointData().GetArray("residual_mm"))
+    radius = RESIDUAL_SPHERE_RADIUS_MM + 1e-4  # float32 points
+    first = np.linalg.norm(points, axis=1) <= radius  # the sphere about P1
+    third = np.linalg.norm(points - (0.0, 80.0, 0.0), axis=1) <= radius
+    assert int(first.sum()) + int(third.sum()) == len(points), "only the included points P1 and P3 get a sphere"
+    assert set(residuals[first]) == {0.25} and set(residuals[~first]) == {0.75}
+    assert model.GetParentTransformNode() is registration
+    assert update_residual_points(scene, table, registration) is model, "drawn again into the same node"
+
+
+@needs_slicer
+def test_the_needle_runs_from_the_tip_back_to_the_probe_origin(scene):
+    from RAMSICPRegistrationLib.navigation.navigation import set_matrix
+    from RAMSICPRegistrationLib.web.scene_display import NEEDLE_RADIUS_MM, TIP_RADIUS_MM, update_needle
+
+    tip = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeTipToProbe")
+    offset = np.eye(4)
+    offset[:3, 3] = (0.0, 0.0, -110.0)
+    set_matrix(tip, offset)
+    needle = update_needle(scene, tip)
+    bounds = np.array(needle.GetPolyData().GetBounds())  # x min, x max, y min, y max, z min, z max
+    np.testing.assert_allclose(bounds[4:], (-TIP_RADIUS_MM, 110.0), atol=1e-6)  # tip ball at 0, shaft up to 110
+    assert bounds[1] <= max(TIP_RADIUS_MM, NEEDLE_RADIUS_MM) + 1e-6
+    assert needle.GetParentTransformNode() is tip
+    update_needle(scene, None)
+    assert scene.GetNodeByID(needle.GetID()) is None
+
+
+@needs_slicer
+def test_a_scene_saved_by_the_controller_opens_as_mrml_and_as_mrb_and_a_broken_one_is_one_message(tmp_path):
+    from RAMSICPRegistrationLib.navigation import mrml_nodes
+    from RAMSICPRegistrationLib.navigation.controller import NavigationController
+    from RAMSICPRegistrationLib.web.app import NavigationWebApp
+
+    source = headless_scene()
+    controller = NavigationController(source)
+    controller.parameters.markersImage = mrml_nodes.fiducial_node(source, [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    written = controller.save(tmp_path / "saved" / "navigation.mrml")
+    controller.close()
+    archive = tmp_path / "saved.mrb"
+    with zipfile.ZipFile(archive, "w") as mrb:
+        for path in written:
+            mrb.write(path, f"saved/{path.name}")
+    for path in (written[0], archive):
+        app = NavigationWebApp(tmp_path / "out")
+        app.load_scene(path)
+        app.start_workflow()
+        np.testing.assert_allclose(
+            mrml_nodes.fiducial_positions(app.controller.parameters.markersImage), [[1, 2, 3], [4, 5, 6]]
+        )
+        app.close()
+    broken = tmp_path / "broken.mrb"
+    broken.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(ValueError, match="broken.mrb: cannot read it"):
+        NavigationWebApp(tmp_path / "out").load_scene(broken)
