@@ -185,6 +185,7 @@ def test_the_3d_view_and_the_slices_follow_the_probe(session):
     distance = float(session.text("#tip-to-surface").split()[0])
     assert distance < 1.0, f"the tip on the bone reads {distance} mm from the surface"
     if os.environ.get("RAMSICP_DOCUMENTATION_SCREENSHOT"):
+        session.page.locator("#connection").scroll_into_view_if_needed()
         session.page.screenshot(path=str(ROOT / "Documentation" / "web_view.png"))
 
 

@@ -75,11 +75,11 @@ def build_page(app):
         page.drawer.width = PANEL_WIDTH_PX
         page.drawer.permanent = True
         with page.drawer, html.Div(classes="pa-2", style="overflow-y: auto; height: 100%;"):
-            _tracker_section()
+            _tracker_section()  # the live readouts first: what the surgeon glances at
             _pivot_section(app)
             _collect_section(app)
             _register_section(app)
-            _verify_section(app)
+            _save_section(app)
         with page.content:
             app.layout.initialize_layout_grid(page)
     return page
@@ -100,6 +100,12 @@ def _tracker_section():
             size="small",
             classes="ma-1",
             variant="flat",
+        )
+        html.Div("tip to bone surface (verify)", classes="text-body-2 mt-2")
+        html.Div(
+            "{{ tip_to_surface ? tip_to_surface + ' mm' : '-' }}",
+            id="tip-to-surface",
+            style="font-size: 44px; font-weight: 700; line-height: 1.1;",
         )
 
 
@@ -198,15 +204,8 @@ def _register_section(app):
                     )
 
 
-def _verify_section(app):
-    from trame.widgets import html
+def _save_section(app):
     from trame.widgets import vuetify3 as v3
 
-    with _section("Verify and save"), v3.VCardText(classes="py-1"):
-        html.Div("tip to bone surface", classes="text-body-2")
-        html.Div(
-            "{{ tip_to_surface ? tip_to_surface + ' mm' : '-' }}",
-            id="tip-to-surface",
-            style="font-size: 44px; font-weight: 700; line-height: 1.1;",
-        )
+    with _section("Save"), v3.VCardText(classes="py-1"):
         _action_button(app, "Save scene", "save", "mdi-content-save", click=app.save)
