@@ -92,7 +92,8 @@ def check_output_directory(path):
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
             pass
     except OSError as error:
-        raise OSError(f"--output {path}: cannot write there ({error.strerror or error}); choose another folder") from None
+        reason = error.strerror or error
+        raise OSError(f"--output {path}: cannot write there ({reason}); choose another folder") from None
     return path
 
 
