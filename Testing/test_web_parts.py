@@ -211,11 +211,15 @@ def test_residual_spheres_and_rows_follow_the_table(scene):
 
 
 @needs_slicer
-def test_the_needle_runs_from_the_tip_back_to_the_probe_origin(scene):
-    from RAMSICPRegistrationLib.navigation.navigation import set_matrix
-    from RAMSICPRegistrationLib.web.scene_display import NEEDLE_RADIUS_MM, TIP_RADIUS_MM, update_needle
+def test_the_needle_runs_from_the_tip_back_to_the_probe_origin_and_moves_only_when_the_tip_does(scene):
+    from vtkmodules.vtkCommonCore import vtkCommand
 
+    from RAMSICPRegistrationLib.navigation.navigation import matrix_of, set_matrix
+    from RAMSICPRegistrationLib.web.scene_display import NEEDLE_RADIUS_MM, TIP_RADIUS_MM, move_needle, update_needle
+
+    probe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference")
     tip = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeTipToProbe")
+    tip.SetAndObserveTransformNodeID(probe.GetID())
     offset = np.eye(4)
     offset[:3, 3] = (0.0, 0.0, -110.0)
     set_matrix(tip, offset)
@@ -223,7 +227,21 @@ def test_the_needle_runs_from_the_tip_back_to_the_probe_origin(scene):
     bounds = np.array(needle.GetPolyData().GetBounds())  # x min, x max, y min, y max, z min, z max
     np.testing.assert_allclose(bounds[4:], (-TIP_RADIUS_MM, 110.0), atol=1e-6)  # tip ball at 0, shaft up to 110
     assert bounds[1] <= max(TIP_RADIUS_MM, NEEDLE_RADIUS_MM) + 1e-6
-    assert needle.GetParentTransformNode() is tip
+    pose_node = needle.GetParentTransformNode()
+    np.testing.assert_allclose(matrix_of(pose_node), offset)  # the tip's pose in the world
+    changes = []
+    pose_node.AddObserver(vtkCommand.ModifiedEvent, lambda *_: changes.append(1))
+    pose_node.AddObserver(pose_node.TransformModifiedEvent, lambda *_: changes.append(1))
+    probe_pose = np.eye(4)
+    probe_pose[:3, 3] = (5.0, 0.0, 0.0)
+    set_matrix(probe, probe_pose)
+    assert move_needle(scene, tip) and changes, "a 5 mm move moves the needle"
+    np.testing.assert_allclose(matrix_of(pose_node), probe_pose @ offset)
+    changes.clear()
+    set_matrix(probe, probe_pose)  # the tracker repeats the pose: the views have nothing new to draw
+    probe_pose[0, 3] += 0.005
+    set_matrix(probe, probe_pose)  # 5 micrometres: the same picture
+    assert not move_needle(scene, tip) and not move_needle(scene, tip) and not changes
     update_needle(scene, None)
     assert scene.GetNodeByID(needle.GetID()) is None
 

@@ -11,8 +11,9 @@ Two servers, each read by a real headless Chromium, fed by the same tracker chai
 Latency: the probe jumps between two touch points; for each jump, the time from the pose change (this process's
 clock) to the first image of the 3D view whose pixels differ, as the page receives and decodes it (the page's clock;
 both are this machine's clock). Frame rate: images per second of the 3D view while the probe slides steadily.
-The 3D view renders after every tracker frame (Slicer re-renders on each transform update), so the frame rate is
-the rate of distinct pictures the page can show, capped by trame-rca's target of 30 frames per second.
+The bare view renders after every tracker frame (each transform update makes Slicer's displayable managers ask for a
+render); ours only when the needle moved. Frames are counted when their pixels differ from the previous one, so
+both rates are distinct pictures per second, capped by trame-rca's target of 30 frames per second.
 
 Run: python benchmarks/bench_web_view.py [--jumps 60] [--seconds 8]
 """
@@ -29,14 +30,14 @@ import numpy as np
 WATCH_FRAMES = """() => {
     window.frames3d = [];
     const canvas = document.createElement('canvas');
-    canvas.width = 160; canvas.height = 160;
     const context = canvas.getContext('2d', {willReadFrequently: true});
     document.addEventListener('load', (event) => {
         const image = event.target;
         if (!(image instanceof HTMLImageElement) || !image.matches('div:has(> #view-ThreeD) img')) return;
-        const time = performance.timeOrigin + performance.now();
-        context.drawImage(image, 0, 0, 160, 160);
-        const pixels = context.getImageData(0, 0, 160, 160).data;
+        const time = Date.now();
+        canvas.width = image.naturalWidth / 2; canvas.height = image.naturalHeight / 2;
+        context.drawImage(image, 0, 0, canvas.width, canvas.height);
+        const pixels = context.getImageData(0, 0, canvas.width, canvas.height).data;
         let sum = 0;
         for (let index = 0; index < pixels.length; index += 1) sum = (sum * 31 + pixels[index]) % 1000000007;
         window.frames3d.push([time, sum]);
@@ -45,15 +46,14 @@ WATCH_FRAMES = """() => {
 
 
 def measure(page, probe, points, jumps, seconds):
-    """(latencies ms (jumps,), frames per second) of the 3D view on a page already showing the needle."""
+    """(latencies ms (jumps,), frames per second) of the 3D view on a page already showing the needle, the probe
+    held on ``points[0]``."""
     page.evaluate(WATCH_FRAMES)
     latencies = []
     for jump in range(jumps):
-        target = points[jump % 2]
-        time.sleep(0.4)  # let the view settle on the last pose
-        page.evaluate("() => { window.frames3d.length = 0; }")
-        page.wait_for_function("() => window.frames3d.length >= 1")  # the picture of the pose held now
-        before = page.evaluate("() => window.frames3d[window.frames3d.length - 1][1]")
+        target = points[(jump + 1) % 2]
+        time.sleep(0.5)  # let the view settle on the last pose
+        before = page.evaluate("() => window.frames3d.length ? window.frames3d[window.frames3d.length - 1][1] : null")
         start_ms = time.time() * 1000.0
         probe.touch(target)
         arrived = page.wait_for_function(
@@ -184,18 +184,20 @@ def main():
                 process, url = start_web_view(arguments_web)
             else:
                 process, url = start_bare(port)
-            page = NavigationPage(browser.new_page(viewport={"width": 1500, "height": 950}))
-            page.page.goto(url)
-            views = ("ThreeD", "Red", "Green", "Yellow") if name == "ours" else ("ThreeD",)
-            wait_for_views(page.page, views)
-            if name == "ours":  # the needle over the CT: pivot, 8 points, register
-                page.pivot(probe, points[0])
-                page.collect(probe, points[::5])
-                page.register()
-            probe.touch(points[0])
-            results[name] = measure(page.page, probe, jump_points, arguments.jumps, arguments.seconds)
-            page.page.close()
-            stop_web_view(process)
+            try:
+                page = NavigationPage(browser.new_page(viewport={"width": 1500, "height": 950}))
+                page.page.goto(url)
+                views = ("ThreeD", "Red", "Green", "Yellow") if name == "ours" else ("ThreeD",)
+                wait_for_views(page.page, views)
+                if name == "ours":  # the needle over the CT: pivot, 8 points, register
+                    page.pivot(probe, points[0])
+                    page.collect(probe, points[::5])
+                    page.register()
+                probe.touch(points[0])
+                results[name] = measure(page.page, probe, jump_points, arguments.jumps, arguments.seconds)
+                page.page.close()
+            finally:
+                stop_web_view(process)
         browser.close()
     tracker.stop()
     simulator.stop()

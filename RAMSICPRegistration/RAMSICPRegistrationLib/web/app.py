@@ -30,7 +30,7 @@ from ..navigation import mrml_nodes
 from ..navigation.controller import NavigationController
 from ..navigation.navigation import load_scene
 from .panel_state import panel_state
-from .scene_display import follow_tip, style_workflow_nodes, update_needle, update_residual_points
+from .scene_display import follow_tip, move_needle, style_workflow_nodes, update_needle, update_residual_points
 
 logger = logging.getLogger(__name__)
 
@@ -227,15 +227,15 @@ class NavigationWebApp:
     def _on_workflow_event(self, event, data):
         parameters = self.controller.parameters
         if event == "pose":
-            if data == "ProbeToReference" and self._registered(parameters):
-                position = self.controller.tip_position()
-                if position is not None:
-                    follow_tip(self.scene, position)
+            if data == "ProbeToReference" and move_needle(self.scene, parameters.probeTipToProbe):
+                if self._registered(parameters):  # the slices show the CT: follow the tip through it
+                    follow_tip(self.scene, self.controller.tip_position())
             return
         if event == "pivot" and data is not None:
             update_needle(self.scene, parameters.probeTipToProbe)
         elif event == "registered":
             update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
+            move_needle(self.scene, parameters.probeTipToProbe)
         elif event in ("collected", "reset", "image"):
             style_workflow_nodes(parameters)
         self._panel_dirty = True

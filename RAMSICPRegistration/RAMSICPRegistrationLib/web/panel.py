@@ -46,6 +46,29 @@ def _action_button(app, label, action, icon=None, **options):
     )
 
 
+def _vector_readout(label, key, element_id):
+    """'label: (x, y, z) mm' from a state list of three texts, shown only when there is one."""
+    from trame.widgets import html
+
+    html.Div(f"{label}: ({{{{ {key}.join(', ') }}}}) mm", v_if=f"{key}.length", id=element_id, classes="text-body-2")
+
+
+def _choice(app, label, name, items, **options):
+    """A select bound to a parameter of the node (``method``, ``policy``): the page shows it, a change writes it."""
+    from trame.widgets import vuetify3 as v3
+
+    v3.VSelect(
+        label=label,
+        items=(items,),
+        model_value=(name,),
+        update_modelValue=(lambda value: app.set_choice(name, value), "[$event]"),
+        density="compact",
+        hide_details=True,
+        id=name,
+        **options,
+    )
+
+
 def _section(title):
     from trame.widgets import vuetify3 as v3
 
@@ -117,12 +140,7 @@ def _pivot_section(app):
         _action_button(app, "Start pivot", "start_pivot", "mdi-record")
         _action_button(app, "Stop pivot", "stop_pivot", "mdi-stop")
         html.Div("recording: {{ pivot_poses }} poses", v_if="pivot_recording", id="pivot-poses", classes="text-body-2")
-        html.Div(
-            "tip offset (probe frame): ({{ tip_offset.join(', ') }}) mm",
-            v_if="tip_offset.length",
-            id="tip-offset",
-            classes="text-body-2",
-        )
+        _vector_readout("tip offset (probe frame)", "tip_offset", "tip-offset")
 
 
 def _collect_section(app):
@@ -147,12 +165,7 @@ def _collect_section(app):
             "<b id='marker-points'>{{ marker_points }}</b>",
             classes="text-body-2",
         )
-        html.Div(
-            "tip (reference frame): ({{ tip_reference.join(', ') }}) mm",
-            v_if="tip_reference.length",
-            id="tip-reference",
-            classes="text-body-2",
-        )
+        _vector_readout("tip (reference frame)", "tip_reference", "tip-reference")
 
 
 def _register_section(app):
@@ -162,26 +175,9 @@ def _register_section(app):
     with _section("Registration"), v3.VCardText(classes="py-1"):
         with v3.VRow(dense=True):
             with v3.VCol(cols=6):
-                v3.VSelect(
-                    label="method",
-                    items=("methods",),
-                    model_value=("method",),
-                    update_modelValue=(lambda value: app.set_choice("method", value), "[$event]"),
-                    density="compact",
-                    hide_details=True,
-                    id="method",
-                )
+                _choice(app, "method", "method", "methods")
             with v3.VCol(cols=6):
-                v3.VSelect(
-                    label="L policy",
-                    items=("policies",),
-                    model_value=("policy",),
-                    update_modelValue=(lambda value: app.set_choice("policy", value), "[$event]"),
-                    disabled=("method !== 'cr-ramsicp'",),
-                    density="compact",
-                    hide_details=True,
-                    id="policy",
-                )
+                _choice(app, "L policy", "policy", "policies", disabled=("method !== 'cr-ramsicp'",))
         _action_button(app, "Register", "register", "mdi-vector-link", click=app.register)
         with html.Div(v_if="registered", classes="text-body-2"):
             html.Div("FRE <b id='fre'>{{ fre }}</b> mm, TRE <b id='tre'>{{ tre || '-' }}</b> mm")

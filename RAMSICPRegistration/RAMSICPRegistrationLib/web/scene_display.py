@@ -1,8 +1,9 @@
 """How the browser view draws the workflow's nodes: display nodes only, never the workflow's data.
 
 * the CT in the slice views, the IPC model in bone colour, the segmentation as outlines in the slices only;
-* the probe as a needle model under ``ProbeTipToProbe`` (tip at its origin, shaft back to the probe's origin),
-  so Slicer's displayable managers move it with every tracker pose;
+* the probe as a needle model (tip at its origin, shaft back to the probe's origin) under a display transform
+  that ``move_needle`` sets to the tip's pose in the world only when it moved: a tracker repeats the same pose 60
+  times a second while the probe is still, and every repeat would make every view render, encode and send again;
 * the registered probe points as spheres coloured by their residual (green 0 mm to red ``RESIDUAL_SCALE_MM``),
   a model under ``ReferenceToImage`` made from the residual table; the point lists themselves, in reference
   coordinates, are hidden (they would float away from the CT);
@@ -15,7 +16,7 @@ Every function takes the scene or node it works on; the nodes it adds are hidden
 import numpy as np
 
 from ..io.vtk_arrays import poly_data
-from ..navigation.navigation import matrix_of
+from ..navigation.navigation import matrix_of, set_matrix
 from ..navigation.scene_render import RESIDUAL_SCALE_MM
 
 #: Attribute marking the display-only nodes this module adds.
@@ -89,19 +90,47 @@ def needle_poly_data(tip_in_probe):
     return append.GetOutput()
 
 
+#: A tip pose that moved less than this (mm, and radians for the rotation) is the same picture.
+NEEDLE_STILL_MM = 0.01
+NEEDLE_STILL_RAD = 1e-4
+
+
 def update_needle(scene, probe_tip_to_probe):
-    """The probe needle model under ``probe_tip_to_probe`` (a pivot result); None removes it."""
+    """The probe needle model for the tip offset in ``probe_tip_to_probe`` (a pivot result), placed at the tip's
+    current pose; None removes it."""
     node = _display_node(scene, "ProbeNeedle", "vtkMRMLModelNode")
     if probe_tip_to_probe is None:
         scene.RemoveNode(node)
         return None
     node.SetAndObservePolyData(needle_poly_data(matrix_of(probe_tip_to_probe, "ProbeTipToProbe")[:3, 3]))
-    node.SetAndObserveTransformNodeID(probe_tip_to_probe.GetID())
+    pose = _display_node(scene, "ProbeNeedlePose", "vtkMRMLLinearTransformNode", display=False)
+    node.SetAndObserveTransformNodeID(pose.GetID())
+    move_needle(scene, probe_tip_to_probe)
     display = node.GetDisplayNode()
     display.SetColor(*NEEDLE_COLOUR)
     display.SetVisibility2D(True)
     display.SetSliceIntersectionThickness(3)
     return node
+
+
+def move_needle(scene, probe_tip_to_probe):
+    """Put the needle at the tip's pose in the world (ProbeTipToProbe -> ... -> world) when it moved by more than
+    ``NEEDLE_STILL_MM`` / ``NEEDLE_STILL_RAD``; returns True when it moved (and the views will render)."""
+    from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+    pose = _find(scene, "ProbeNeedlePose")
+    if pose is None or probe_tip_to_probe is None:
+        return False
+    world = vtkMatrix4x4()
+    probe_tip_to_probe.GetMatrixTransformToWorld(world)
+    target = np.array([[world.GetElement(row, column) for column in range(4)] for row in range(4)])
+    shown = matrix_of(pose, "ProbeNeedlePose")
+    moved = np.abs(target[:3, 3] - shown[:3, 3]).max() > NEEDLE_STILL_MM
+    turned = np.abs(target[:3, :3] - shown[:3, :3]).max() > NEEDLE_STILL_RAD
+    if not (moved or turned):
+        return False
+    set_matrix(pose, target)
+    return True
 
 
 def residual_points(table_node):
@@ -189,11 +218,12 @@ def _find(scene, name):
     return None
 
 
-def _display_node(scene, name, node_class):
+def _display_node(scene, name, node_class, display=True):
     node = _find(scene, name)
     if node is None:
         node = scene.AddNewNodeByClass(node_class, name)
         node.SetAttribute(DISPLAY_ATTRIBUTE, "1")
         node.SetHideFromEditors(True)
-        node.CreateDefaultDisplayNodes()
+        if display:
+            node.CreateDefaultDisplayNodes()
     return node
