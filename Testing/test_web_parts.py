@@ -43,17 +43,18 @@ def test_figures_are_shown_to_the_hundredth_of_a_millimetre_and_never_as_minus_z
 
 def test_the_pivot_phase_swivels_about_a_fixed_tip_that_a_pivot_calibration_recovers():
     points = np.array([[10.0, 20.0, 30.0], [40.0, 50.0, 60.0]])
-    script = TouchScript(points, np.eye(4), dwell_s=1.0, move_s=0.5, start_s=0.3, pivot_s=4.0, loop=True)
-    times = np.linspace(0.3, 4.29, 120)
-    poses = np.array([script.probe_to_reference(t) for t in times])
+    script = TouchScript(points, np.eye(4), dwell_s=1.0, move_s=0.5, start_s=0.5, pivot_s=4.0, loop=True)
+    poses = np.array([script.probe_to_reference(t) for t in np.linspace(0.0, 3.99, 120)])
     tips = poses[:, :3, :3] @ PROBE_TIP_MM + poses[:, :3, 3]
     assert np.abs(tips - points[0]).max() < 1e-9, "the tip must rest in the divot while the probe swivels"
     result = pivot_calibration(poses)
     np.testing.assert_allclose(result.tip_in_probe, PROBE_TIP_MM, atol=1e-6)
     assert result.rotation_range_deg > 30
-    after_pivot = script.probe_to_reference(0.3 + 4.0 + 1.5 + 0.5)  # dwelling on the second point
-    np.testing.assert_allclose(after_pivot[:3, :3] @ PROBE_TIP_MM + after_pivot[:3, 3], points[1], atol=1e-9)
-    np.testing.assert_allclose(script.probe_to_reference(1.0 + script.cycle_s), script.probe_to_reference(1.0))
+    start, end = script.touch_interval(1)
+    assert (start, end) == (4.0 + 0.5 + 1.5 + 0.5, 4.0 + 0.5 + 3.0)  # after the pivot, the timeline as before
+    dwelling = script.probe_to_reference((start + end) / 2)
+    np.testing.assert_allclose(dwelling[:3, :3] @ PROBE_TIP_MM + dwelling[:3, 3], points[1], atol=1e-9)
+    np.testing.assert_allclose(script.probe_to_reference(1.0 + script.duration_s), script.probe_to_reference(1.0))
 
 
 def test_a_hand_held_probe_puts_its_tip_where_it_is_told_in_tracker_coordinates():
