@@ -274,3 +274,40 @@ def test_a_scene_saved_by_the_controller_opens_as_mrml_and_as_mrb_and_a_broken_o
     broken.write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(ValueError, match="broken.mrb: cannot read it"):
         NavigationWebApp(tmp_path / "out").load_scene(broken)
+
+
+@needs_slicer
+def test_the_views_render_when_the_needle_moves_not_when_a_tracker_transform_updates(tmp_path):
+    from RAMSICPRegistrationLib.navigation.navigation import set_matrix
+    from RAMSICPRegistrationLib.web.app import NavigationWebApp
+    from RAMSICPRegistrationLib.web.scene_display import update_needle
+
+    app = NavigationWebApp(tmp_path)
+    app.start_workflow()
+    requests = {}
+    for view in app.slicer.view_manager.get_views():  # a displayable manager asks its view to render
+        tag = view.get_singleton_tag()
+        requests[tag] = 0
+        view._displayable_manager_group.AddObserver(
+            "UpdateEvent", lambda *_, tag=tag: requests.update({tag: requests[tag] + 1})
+        )
+    steps, pose = app.controller.steps, np.eye(4)
+    tip = steps.transform_node("ProbeTipToProbe")
+    pose[:3, 3] = (0.0, 0.0, -110.0)
+    set_matrix(tip, pose)
+    update_needle(app.scene, tip)  # the needle, at the tip's pose (not under the streamed transforms)
+    names = ("ProbeToTracker", "ReferenceToTracker", "ProbeToReference")
+    for name in names:  # the first update (a node's first matrix) may ask for one render of the 3D view
+        set_matrix(steps.transform_node(name), np.eye(4))
+    requests.update({tag: 0 for tag in requests})
+    for name in names:
+        for _ in range(20):  # a still probe: the tracker streams the same poses
+            set_matrix(steps.transform_node(name), np.eye(4))
+    assert sum(requests.values()) == 0, f"views asked to render for invisible transforms: {requests}"
+    pose[:3, 3] = (30.0, 0.0, -110.0)
+    set_matrix(tip, pose)
+    from RAMSICPRegistrationLib.web.scene_display import move_needle
+
+    assert move_needle(app.scene, tip)
+    assert all(count >= 1 for count in requests.values()), f"the moved needle must be drawn in every view: {requests}"
+    app.close()

@@ -30,7 +30,14 @@ from ..navigation import mrml_nodes
 from ..navigation.controller import NavigationController
 from ..navigation.navigation import load_scene
 from .panel_state import panel_state
-from .scene_display import follow_tip, move_needle, style_workflow_nodes, update_needle, update_residual_points
+from .scene_display import (
+    follow_tip,
+    move_needle,
+    quiet_transform_managers,
+    style_workflow_nodes,
+    update_needle,
+    update_residual_points,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -129,12 +136,12 @@ class NavigationWebApp:
         from trame_slicer.rca_view import register_rca_factories
 
         self.output_directory = Path(output_directory)
+        from .panel import slice_view_gutter, three_d_view_gutter
+
         self.server = get_server(f"RAMSICP navigation {next(_SERVER_NUMBERS)}", client_type="vue3")
         self.slicer = SlicerApp()
         self.scene = self.slicer.scene
         # blur_fps=None: a second screen nobody hovers renders as fast as the focused one.
-        from .panel import slice_view_gutter, three_d_view_gutter
-
         register_rca_factories(
             self.slicer.view_manager,
             self.server,
@@ -148,10 +155,10 @@ class NavigationWebApp:
         self.layout.set_layout(LAYOUT_ID)
         for view in self.slicer.view_manager.get_views():
             view.render_window().SetMultiSamples(0)  # 8x multisampling costs 10x on software GL
+            quiet_transform_managers(view._displayable_manager_group)  # trame-slicer has no public accessor
         self.controller = None
         self.bridge = None
         self._tasks = []
-        self._panel_dirty = True
 
     # -- what the session works on -------------------------------------------------------------------------
     def load_scene(self, path):
@@ -196,7 +203,8 @@ class NavigationWebApp:
         parameters.ctVolume = mrml_nodes.volume_node(self.scene, volume, "CT")
         image = self.controller.process_ct()
         if image is None or image.warnings:
-            raise RuntimeError("the demo CT did not give clean marker spheres: " + "; ".join(image.warnings))
+            reasons = "processing failed" if image is None else "; ".join(image.warnings)
+            raise RuntimeError(f"the demo CT did not give clean marker spheres: {reasons}")
         self.controller.add_reference_body_markers()
         targets_patient = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image)
         labels = [f"T{number + 1}" for number in range(len(targets_patient))]
@@ -236,9 +244,10 @@ class NavigationWebApp:
         elif event == "registered":
             update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
             move_needle(self.scene, parameters.probeTipToProbe)
+            if self._registered(parameters) and self.controller.tip_position() is not None:
+                follow_tip(self.scene, self.controller.tip_position())
         elif event in ("collected", "reset", "image"):
             style_workflow_nodes(parameters)
-        self._panel_dirty = True
 
     @staticmethod
     def _registered(parameters):
@@ -268,7 +277,7 @@ class NavigationWebApp:
                 with self.server.state:
                     self.server.state.busy = ""
 
-        self._tasks.append(asyncio.ensure_future(later()))
+        self._tasks = [task for task in self._tasks if not task.done()] + [asyncio.ensure_future(later())]
 
     def register(self):
         self.run_after_showing_busy("register")
@@ -294,7 +303,6 @@ class NavigationWebApp:
     def refresh_panel(self):
         with self.server.state:
             self.server.state.update(panel_state(self.controller, self.bridge.status()))
-        self._panel_dirty = False
 
     # -- serving -------------------------------------------------------------------------------------------
     def build_page(self):

@@ -203,6 +203,28 @@ def _residual_colours(scene):
     return node
 
 
+#: Displayable managers that draw transform nodes' own display nodes (none in this view) and ask their view to
+#: render on every update of any transform in the scene.
+TRANSFORM_MANAGERS = (
+    "vtkMRMLTransformsDisplayableManager2D",
+    "vtkMRMLTransformsDisplayableManager3D",
+    "vtkMRMLLinearTransformsDisplayableManager",
+)
+
+
+def quiet_transform_managers(displayable_manager_group):
+    """Detach a view's transform displayable managers from the scene, so that a view renders when what it shows
+    changes, not whenever a tracker updates a transform: with three transforms streamed at 60 Hz, every view
+    would otherwise render, encode and send pictures without pause. Returns the number detached."""
+    detached = 0
+    for name in TRANSFORM_MANAGERS:
+        manager = displayable_manager_group.GetDisplayableManagerByClassName(name)
+        if manager is not None:
+            manager.SetMRMLScene(None)
+            detached += 1
+    return detached
+
+
 def follow_tip(scene, position):
     """Move every slice (axial, coronal, sagittal) through ``position`` (3,) RAS mm, as Slicer's reslice driver."""
     x, y, z = (float(value) for value in position)
