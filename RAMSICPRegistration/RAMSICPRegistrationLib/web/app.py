@@ -159,6 +159,8 @@ class NavigationWebApp:
         self.controller = None
         self.bridge = None
         self._tasks = []
+        self._tip_moved = False
+        self.follow_interval_s = 1.0 / target_fps
 
     # -- what the session works on -------------------------------------------------------------------------
     def load_scene(self, path):
@@ -236,16 +238,14 @@ class NavigationWebApp:
         parameters = self.controller.parameters
         if event == "pose":
             if data == "ProbeToReference" and move_needle(self.scene, parameters.probeTipToProbe):
-                if self._registered(parameters):  # the slices show the CT: follow the tip through it
-                    follow_tip(self.scene, self.controller.tip_position())
+                self._tip_moved = True  # the slices follow in the poll loop, at most at the views' frame rate
             return
         if event == "pivot" and data is not None:
             update_needle(self.scene, parameters.probeTipToProbe)
         elif event == "registered":
             update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
             move_needle(self.scene, parameters.probeTipToProbe)
-            if self._registered(parameters) and self.controller.tip_position() is not None:
-                follow_tip(self.scene, self.controller.tip_position())
+            self._tip_moved = True
         elif event in ("collected", "reset", "image"):
             style_workflow_nodes(parameters)
 
@@ -314,12 +314,26 @@ class NavigationWebApp:
         build_page(self)
 
     async def _poll_loop(self):
+        last_follow = 0.0
         while True:
             try:
                 self.bridge.poll()
+                now = time.monotonic()
+                if self._tip_moved and now - last_follow >= self.follow_interval_s:
+                    self._follow_tip()
+                    last_follow = now
             except Exception:  # a display error must not stop the tracker feed
                 logger.exception("tracker poll failed")
             await asyncio.sleep(POLL_INTERVAL_S)
+
+    def _follow_tip(self):
+        """Move the slices through the tip once the registration puts it in the CT. Moving a slice re-cuts what
+        it shows, so this runs at most at the views' frame rate, not at the tracker's."""
+        self._tip_moved = False
+        parameters = self.controller.parameters
+        position = self.controller.tip_position()
+        if position is not None and self._registered(parameters):
+            follow_tip(self.scene, position)
 
     async def _panel_loop(self):
         while True:
