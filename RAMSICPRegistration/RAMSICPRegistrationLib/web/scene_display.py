@@ -48,6 +48,7 @@ def style_workflow_nodes(parameters):
         # Opaque: software GL draws the 200,000 translucent triangles with depth peeling in about 340 ms a frame,
         # opaque in about 55 ms (900 x 880 pixels, measured here).
         display.SetOpacity(1.0)
+        display.SetBackfaceCulling(True)  # a closed surface seen from outside: 36 -> 25 ms a frame
         display.SetVisibility2D(False)  # the segmentation's outline shows it; re-cutting 200,000 triangles is slow
     segmentation = parameters.segmentation
     if segmentation is not None and segmentation.GetDisplayNode() is not None:
