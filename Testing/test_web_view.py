@@ -122,7 +122,10 @@ def test_forty_touches_collected_and_registered_from_the_page_give_the_python_re
     from RAMSICPRegistrationLib.io.point_files import read_points
 
     session.collect(session.probe, session.points)
+    session.choose("method", "cr-ramsicp")
+    session.choose("policy", "rms-plateau")
     page_figures = session.register()
+    assert session.text("#message").startswith("CR-RAMSICP, L = "), session.text("#message")
     assert session.page.locator("#residuals tbody tr").count() == 40
     assert session.page.locator("#sweep svg polyline").count() == 2  # RMS and TRE against L
 

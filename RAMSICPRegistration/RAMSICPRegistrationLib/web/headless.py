@@ -184,6 +184,17 @@ class NavigationPage:
             self.click("Collect point")
             self.wait_for_text("#probe-points", f"^{number}$")
 
+    def choose(self, name, value):
+        """Pick ``value`` in the select ``name`` ('method' or 'policy') as a person does, and wait until the page
+        shows it chosen (the server wrote it into the parameter node and sent it back)."""
+        self.page.locator(f"#{name}").click(force=True)
+        self.page.get_by_role("option", name=value, exact=True).click()
+        self.page.wait_for_function(
+            "([name, value]) => { const select = document.querySelector('#' + name).closest('.v-select');"
+            " return select !== null && select.innerText.split('\\n').includes(value); }",
+            arg=[name, value],
+        )
+
     def register(self):
         """Register from the page; returns the (FRE, TRE) texts it shows."""
         self.click("Register")
