@@ -3,7 +3,7 @@
 A thin Slicer shell over ``RAMSICPRegistrationLib.navigation.controller.NavigationController``, which holds every
 piece of behaviour (MRML event observers, tracking state, pivot recording, auto-collect, registration, scene-close
 clean-up) and is tested on slicer-core. The widget only binds the GUI to the parameter node, forwards clicks with
-``controller.run(...)`` and shows what the controller reports. Supported: Slicer 5.6, 5.8 and 5.10 (every Slicer
+``controller.run(...)`` and shows what the controller reports, the live guidance of the cut included. Supported: Slicer 5.6, 5.8 and 5.10 (every Slicer
 API used here is checked against their sources by ``Testing/test_module_files.py``).
 """
 
@@ -15,6 +15,7 @@ import slicer
 from slicer import (
     vtkMRMLLinearTransformNode,
     vtkMRMLMarkupsFiducialNode,
+    vtkMRMLMarkupsPlaneNode,
     vtkMRMLModelNode,
     vtkMRMLPlotChartNode,
     vtkMRMLScalarVolumeNode,
@@ -33,6 +34,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD, METHODS, POLICIES
+from RAMSICPRegistrationLib.core.tool_path import TOOLS
 from RAMSICPRegistrationLib.navigation.controller import Cancelled, NavigationController
 
 #: PLACEHOLDER until publication: the same address as EXTENSION_HOMEPAGE in the top-level CMakeLists.txt.
@@ -45,6 +47,9 @@ BUTTON_ACTIONS = {
     "collectButton": "collect_point",
     "registerButton": "register",
     "robotButton": "robot_calibration",
+    "planCutButton": "plan_cut",
+    "sendPathButton": "send_tool_path",
+    "stopRobotButton": "stop_robot",
 }
 #: Widget -> controller action whose availability enables it.
 ENABLED_BY = {
@@ -54,8 +59,14 @@ ENABLED_BY = {
     "collectButton": "collect_point",
     "registerButton": "register",
     "robotButton": "robot_calibration",
+    "planCutButton": "plan_cut",
+    "savePlanButton": "save_plan",
+    "sendPathButton": "send_tool_path",
+    "stopRobotButton": "stop_robot",
 }
 REFRESH_INTERVAL_MS = 200
+ON_PLAN_STYLE = "color: #ffffff; background-color: #2e7d32; font-size: 15px; font-weight: bold; padding: 4px"
+OFF_PLAN_STYLE = "color: #ffffff; background-color: #c62828; font-size: 15px; font-weight: bold; padding: 4px"
 
 
 class RAMSICPRegistration(ScriptedLoadableModule):
@@ -69,8 +80,8 @@ class RAMSICPRegistration(ScriptedLoadableModule):
             _(
                 "Patient-to-image registration for robot-assisted long-bone osteotomy: coarse registration on the "
                 "reference body's marker spheres, then range-adaptive ICP (CR-RAMSICP) on probe points. Steps: image, "
-                "tracker, patient points, register, verify, robot, save. Feed the tracker with the OpenIGTLink Bridge "
-                "module."
+                "tracker, patient points, register, verify, robot, plan and cut (live guidance, the path to the robot), "
+                "save. Feed the tracker with the OpenIGTLink Bridge module."
             )
             + f' <a href="{DOCUMENTATION_URL}">{_("Documentation")}</a>'
         )
@@ -108,6 +119,21 @@ class RAMSICPRegistrationParameterNode:
     trackerPositions: vtkMRMLMarkupsFiducialNode
     robotBaseToTracker: vtkMRMLLinearTransformNode
     imageToRobotBase: vtkMRMLLinearTransformNode
+    osteotomyPlane: vtkMRMLMarkupsPlaneNode
+    cutExtentMm: Annotated[float, WithinRange(0.0, 300.0)] = 0.0
+    wedgeAngleDeg: Annotated[float, WithinRange(0.0, 30.0)] = 0.0
+    wedgePlane: vtkMRMLMarkupsPlaneNode
+    cuttingTool: Annotated[str, Choice(list(TOOLS))] = "saw"
+    toolWidthMm: Annotated[float, WithinRange(0.5, 50.0)] = 10.0
+    farMarginMm: Annotated[float, WithinRange(0.0, 30.0)] = 2.0
+    cutEndpoints: vtkMRMLMarkupsFiducialNode
+    toolPath: vtkMRMLModelNode
+    toolToTracker: vtkMRMLLinearTransformNode
+    toolTipToTool: vtkMRMLLinearTransformNode
+    guidanceDistanceMm: Annotated[float, WithinRange(0.1, 10.0)] = 1.0
+    guidanceAngleDeg: Annotated[float, WithinRange(0.1, 20.0)] = 2.0
+    robotHost: str = "127.0.0.1"
+    robotPort: Annotated[int, WithinRange(1, 65535)] = 18945
 
 
 class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
@@ -137,6 +163,7 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.ui.autoCollectCheckBox.connect("toggled(bool)", self.onAutoCollectToggled)
         self.ui.holdStillCheckBox.connect("toggled(bool)", self.onHoldStillToggled)
         self.ui.saveButton.connect("clicked(bool)", self.onSave)
+        self.ui.savePlanButton.connect("clicked(bool)", self.onSavePlan)
         self._timer = qt.QTimer(self.parent)
         self._timer.setInterval(REFRESH_INTERVAL_MS)
         self._timer.connect("timeout()", self.refresh)
@@ -237,6 +264,11 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
                 if not slicer.util.saveScene(path):
                     raise RuntimeError(_("Slicer could not write {path}").format(path=path))
 
+    def onSavePlan(self):
+        path = qt.QFileDialog.getSaveFileName(None, _("Save the osteotomy plan"), "plan.json", _("JSON (*.json)"))
+        if path:
+            self.run("save_plan", path)
+
     # -- what the controller reports -----------------------------------------------------------------------
     def onControllerEvent(self, event, data):
         if event == "registered":
@@ -284,6 +316,13 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.ui.pivotResultLabel.text = (
             _("recording: {count} poses").format(count=status.pivot_poses) if status.pivot_recording else ""
         )
+        self.ui.cutLabel.text = status.cut
+        guidance = status.guidance
+        self.ui.guidanceLabel.text = _("guidance: -") if guidance is None else guidance.text
+        self.ui.guidanceLabel.styleSheet = (
+            "" if guidance is None else (ON_PLAN_STYLE if guidance.on_plan else OFF_PLAN_STYLE)
+        )
+        self.ui.robotStatusLabel.text = status.robot
         table = self._parameterNode.residualTable
         if self.ui.residualTableView.mrmlTableNode() is not table:
             self.ui.residualTableView.setMRMLTableNode(table)

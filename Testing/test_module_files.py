@@ -109,11 +109,13 @@ def _wrapper_fields(name):
 @pytest.mark.parametrize("name", MODULES)
 def test_the_widgets_parameter_node_declares_exactly_the_controllers_parameters(name):
     from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD, METHODS, POLICIES
+    from RAMSICPRegistrationLib.core.tool_path import TOOLS
 
     fields = _wrapper_fields(name)
     parameters = _parameter_set(name).parameters
     assert list(fields) == [parameter.name for parameter in parameters]
     known = {"DEFAULT_METHOD": DEFAULT_METHOD, "list(METHODS)": list(METHODS), "list(POLICIES)": list(POLICIES)}
+    known["list(TOOLS)"] = list(TOOLS)
     if name == "OpenIGTLinkBridge":
         from OpenIGTLinkBridgeLib.bridge_controller import SOURCES
 

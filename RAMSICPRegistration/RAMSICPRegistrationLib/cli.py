@@ -1,5 +1,5 @@
-"""The ``ramsicp`` command line: ``register`` files, run the ``demo``, serve the browser view (``web``). It owns the
-console."""
+"""The ``ramsicp`` command line: ``register`` files, ``plan`` a cut, run the ``demo``, serve the browser view
+(``web``). It owns the console."""
 
 import argparse
 import json
@@ -13,8 +13,11 @@ import numpy as np
 from . import __version__
 from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S, HoldStillDetector
 from .core.registration import DEFAULT_METHOD, METHODS, POLICIES, register
+from .core.robot import tcp_four_point
 from .core.surface_index import SurfaceIndex
 from .core.sweep import make_scales
+from .core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS, plan_document, plan_osteotomy
+from .core.validation import as_transform
 from .experiments.demo import FUSED_LABEL, MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
 from .experiments.experiment_report import write_outputs
 from .experiments.experiments import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES, run_experiments
@@ -25,7 +28,7 @@ from .image.volume_io import CTVolume, load_volume, save_nrrd
 from .io.marker_files import check_markers_path, flagged_message, pair_markers, read_markers, write_markers
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from .io.point_files import POINT_SUFFIXES, _suffix, read_points, write_points
-from .io.surface_files import read_surface_points, write_surface
+from .io.surface_files import SURFACE_SUFFIXES, read_surface_mesh, read_surface_points, write_surface
 from .simulation.ct_painting import BODY_MATERIALS, ReferenceBodyModel, rotated_direction
 from .simulation.ct_phantom import FILE_FRAMES, make_ct_phantom, write_phantom
 from .simulation.package_data import BONES, shipped_patient
@@ -260,6 +263,72 @@ def _parser():
         help="turn the scanner grid by DEG about an oblique axis (a non-identity direction matrix)",
     )
     phantom.set_defaults(run=_run_phantom)
+
+    plan = commands.add_parser(
+        "plan",
+        help="plan an osteotomy cut on the IPC: its four endpoints and the tool path (image, or robot base)",
+        description="Writes the cut's plane, its four endpoints on the bone (plane x bone) and the tool path (TCP "
+        "poses, 4 x 4) as JSON, in image (RAS) mm, and in robot-base coordinates with --image-to-robot-base. The "
+        "bone's section is exact when the IPC is a surface with triangles (as ramsicp ipc writes it).",
+    )
+    plan.add_argument("--ipc", required=True, help="image point cloud: .vtk .vtp .stl .ply .obj or a point file")
+    plan.add_argument(
+        "--plane",
+        type=float,
+        nargs=6,
+        required=True,
+        metavar=("X", "Y", "Z", "NX", "NY", "NZ"),
+        help="a point of the cut plane (its middle) and its normal, RAS mm",
+    )
+    plan.add_argument(
+        "--depth",
+        type=float,
+        nargs=3,
+        metavar=("DX", "DY", "DZ"),
+        help="the direction the blade advances, from its entry side (default: across the bone's narrowest width)",
+    )
+    plan.add_argument("--extent", type=float, metavar="MM", help="the cut's width across the bone (default: all)")
+    plan.add_argument("--wedge", type=float, default=0.0, metavar="DEG", help="a closing wedge: the second cut's angle")
+    plan.add_argument("--tool", choices=TOOLS, default="saw")
+    plan.add_argument(
+        "--tool-width",
+        type=float,
+        metavar="MM",
+        help=f"blade width or burr diameter (default {DEFAULT_TOOL_WIDTH_MM['saw']:g} mm saw, "
+        f"{DEFAULT_TOOL_WIDTH_MM['burr']:g} mm burr)",
+    )
+    plan.add_argument(
+        "--far-margin",
+        type=float,
+        default=DEFAULT_FAR_MARGIN_MM,
+        metavar="MM",
+        help=f"stop this far before the far cortex (default {DEFAULT_FAR_MARGIN_MM:g} mm)",
+    )
+    plan.add_argument(
+        "--image-to-robot-base",
+        type=Path,
+        metavar="MATRIX_FILE",
+        help="ImageToRobotBase (eq. 4): 4 rows of 4 numbers (.txt/.csv), or JSON (a 4 x 4 list, or an object with "
+        "'image_to_robot_base')",
+    )
+    plan.add_argument("--untagged-space", choices=("RAS", "LPS"), default="RAS", help="frame of an untagged IPC file")
+    plan.add_argument("--out", type=Path, required=True, help="the plan, JSON")
+    plan.set_defaults(run=_run_plan)
+
+    tcp = commands.add_parser(
+        "tcp",
+        help="the robot's tool-centre point by the four-point method, from flange poses",
+        description="Each flange pose (FlangeToRobotBase from the robot's kinematics) is taken with the TCP held on "
+        "one fixed point, the flange turned differently each time (4 or more poses, turns about two axes).",
+    )
+    tcp.add_argument(
+        "--flange-poses",
+        type=Path,
+        required=True,
+        help="JSON list of 4 x 4 matrices, or text with one pose a line (16 numbers, row by row), mm",
+    )
+    tcp.add_argument("--json", type=Path, help="write the TCP, the fixed point and the residuals as JSON")
+    tcp.set_defaults(run=_run_tcp)
 
     reproduce = commands.add_parser(
         "reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with cr-fused"
@@ -828,6 +897,114 @@ def _run_web(arguments):
 
     app.serve(arguments.host, arguments.port, on_ready=ready)
     return 0
+
+
+def _run_plan(arguments):
+    _check_output(arguments.out, "--out", (".json",))
+    image_to_base = None
+    if arguments.image_to_robot_base is not None:
+        image_to_base = _read_matrix(arguments.image_to_robot_base, "--image-to-robot-base")
+    clock = time.perf_counter()
+    triangles = None
+    if _suffix(Path(arguments.ipc)) in SURFACE_SUFFIXES:
+        points, triangles = read_surface_mesh(arguments.ipc, arguments.untagged_space)
+    else:
+        points = read_points(arguments.ipc, arguments.untagged_space).points
+    plans, path = plan_osteotomy(
+        points,
+        arguments.plane[:3],
+        arguments.plane[3:],
+        depth=arguments.depth,
+        extent_mm=arguments.extent,
+        wedge_deg=arguments.wedge,
+        triangles=triangles,
+        tool=arguments.tool,
+        width_mm=arguments.tool_width,
+        far_margin_mm=arguments.far_margin,
+    )
+    document = plan_document(plans, path, image_to_base)
+    arguments.out.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    section = "exact (mesh)" if plans[0].section.exact else "from the IPC points within 0.3 mm"
+    print(f"IPC              {arguments.ipc}: {len(points):,} points; section {section}")
+    for number, plan in enumerate(plans):
+        plane = plan.plane
+        name = "cut" if len(plans) == 1 else f"cut {number + 1}"
+        width = "the whole bone" if plan.extent_mm is None else f"{plan.extent_mm:g} mm"
+        print(
+            f"{name:<17}origin ({_numbers(plane.origin)}) normal ({_numbers(plane.normal)}) depth "
+            f"({_numbers(plane.depth)}); across {width}"
+        )
+        for label, point in zip(plan.endpoint_labels, plan.endpoints):
+            print(f"  {label:<15}({_numbers(point)})")
+    print(
+        f"tool path        {path.tool} {path.width_mm:g} mm: {len(path.poses)} poses in {path.passes} passes, "
+        f"{path.length_mm:.0f} mm, stopping {path.far_margin_mm:g} mm before the far cortex"
+    )
+    frames = "image and robot base" if image_to_base is not None else "image"
+    print(f"written          {arguments.out} ({frames} coordinates); {time.perf_counter() - clock:.2f} s")
+    return 0
+
+
+def _run_tcp(arguments):
+    _check_output(arguments.json, "--json", (".json",))
+    poses = _read_poses(arguments.flange_poses)
+    result = tcp_four_point(poses)
+    print(f"flange poses     {len(poses)} from {arguments.flange_poses}")
+    print(f"TCP in flange    ({_numbers(result.tcp_in_flange)}) mm, {np.linalg.norm(result.tcp_in_flange):.2f} mm out")
+    print(f"fixed point      ({_numbers(result.point_in_base)}) mm in the robot base")
+    print(f"residuals        {_numbers(result.residuals_mm)} mm; RMS {result.rms_mm:.3f} mm")
+    print(f"least turn       {result.spread_deg:.1f} degrees about any axis")
+    if arguments.json:
+        arguments.json.write_text(json.dumps(result.to_dict(), indent=2), encoding="utf-8")
+    return 0
+
+
+def _read_matrix(path, option):
+    """A (4, 4) matrix from a text file (4 rows of 4 numbers) or JSON; ValueError in one line."""
+    values = _read_numbers(path, option)
+    if isinstance(values, dict):
+        values = values.get("image_to_robot_base", values.get("robot_base", {}).get("image_to_robot_base"))
+    try:
+        matrix = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        matrix = np.zeros(0)
+    if matrix.shape != (4, 4):
+        raise ValueError(f"{option} {path}: expected a 4 x 4 matrix (4 rows of 4 numbers), got shape {matrix.shape}")
+    return as_transform(matrix, f"{option} {path}")
+
+
+def _read_poses(path):
+    """(N, 4, 4) poses from JSON (a list of 4 x 4) or text (16 numbers a line, row by row)."""
+    values = _read_numbers(path, "--flange-poses")
+    try:
+        poses = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        poses = np.zeros(0)
+    if poses.ndim == 2 and poses.shape[1] == 16:
+        poses = poses.reshape(-1, 4, 4)
+    if poses.ndim == 1 and poses.size == 16:
+        poses = poses.reshape(1, 4, 4)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"--flange-poses {path}: expected 4 x 4 poses (16 numbers a line), got shape {poses.shape}")
+    return poses
+
+
+def _read_numbers(path, option):
+    if path.is_dir():
+        raise ValueError(f"{option} {path}: is a folder; give a file")
+    if not path.is_file():
+        raise ValueError(f"{option} {path}: no such file")
+    text = path.read_text(encoding="utf-8", errors="replace")
+    if path.suffix.lower() == ".json":
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{option} {path}: not valid JSON ({error.msg}, line {error.lineno})") from None
+    rows = [line.replace(",", " ").split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
+    try:
+        return [[float(value) for value in row] for row in rows]
+    except ValueError as error:
+        raise ValueError(f"{option} {path}: {error}; give numbers only") from None
 
 
 def _number(text, name):

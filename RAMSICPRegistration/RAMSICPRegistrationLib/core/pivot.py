@@ -56,14 +56,14 @@ def pivot_calibration(probe_to_reference):
         )
     inliers = np.ones(len(poses), dtype=bool)
     for _ in range(3):
-        tip, pivot = _solve(poses[inliers])
+        tip, pivot = fixed_point_fit(poses[inliers])
         residuals = np.linalg.norm(poses[:, :3, :3] @ tip + poses[:, :3, 3] - pivot, axis=1)
         limit = max(OUTLIER_FACTOR * np.median(residuals[inliers]), 0.5)
         updated = residuals <= limit
         if updated.sum() < MIN_POSES or np.array_equal(updated, inliers):
             break
         inliers = updated
-    tip, pivot = _solve(poses[inliers])
+    tip, pivot = fixed_point_fit(poses[inliers])
     residuals = np.linalg.norm(poses[:, :3, :3] @ tip + poses[:, :3, 3] - pivot, axis=1)
     rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
     return PivotResult(
@@ -71,7 +71,13 @@ def pivot_calibration(probe_to_reference):
     )
 
 
-def _solve(poses):
+def fixed_point_fit(poses):
+    """Least squares of ``R_i p + t_i = q`` over (N, 4, 4) poses ``(R_i, t_i)`` of a moving frame in a fixed one:
+    ``p`` (3,) the point held still, in the moving frame, and ``q`` (3,) where it stays, in the fixed frame (mm).
+
+    The pivot calibration (a probe tip in a divot) and the robot's four-point TCP calibration (``core.robot``: the
+    tool-centre point held on one point while the flange turns) are both this fit.
+    """
     count = len(poses)
     design = np.zeros((3 * count, 6))
     design[:, :3] = poses[:, :3, :3].reshape(3 * count, 3)

@@ -6,12 +6,20 @@ tracker coordinates. Both triples define one auxiliary frame A (origin p1, x tow
 so ``RobotBaseToTracker = AToTracker @ inv(AToRobotBase)`` (eq. 3), and the transform that sends planned image
 coordinates to the robot (eq. 4) is ``ImageToRobotBase = inv(RobotBaseToTracker) @ ReferenceToTracker @
 inv(ReferenceToImage)``.
+
+The robot's tool-centre point (TCP) itself, ``ToolToFlange``, comes from the four-point method the paper cites
+([29]): the robot holds the TCP on one fixed point while its flange takes four (or more) orientations; each flange
+pose ``(R_i, t_i)`` (``FlangeToRobotBase``, from the kinematics) then satisfies ``R_i p + t_i = q``, a linear least
+squares in the TCP offset ``p`` (flange frame) and the point ``q`` (robot base), the pivot calibration's fit.
 """
+
+from dataclasses import dataclass
 
 import numpy as np
 
+from .pivot import fixed_point_fit
 from .transforms import invert_transform, make_transform
-from .validation import as_points, check_distinct, check_not_collinear
+from .validation import as_points, as_transform, check_distinct, check_not_collinear
 
 
 def auxiliary_frame(points):
@@ -56,3 +64,107 @@ def image_to_robot_base(robot_base_to_tracker_transform, reference_to_tracker, r
     return (
         invert_transform(robot_base_to_tracker_transform) @ reference_to_tracker @ invert_transform(reference_to_image)
     )
+
+
+#: The four-point method needs at least this many flange poses.
+MIN_TCP_POSES = 4
+#: Two flange orientations closer than this (degrees) repeat one pose: together they tell nothing about the TCP.
+MIN_TCP_TURN_DEG = 5.0
+#: The orientations must also turn this much (degrees, RMS) about their least-turned axis; flange turns about one
+#: axis only (flange positions on one circle, in one plane) leave the TCP's offset along that axis undetermined.
+MIN_TCP_SPREAD_DEG = 5.0
+#: A pose whose TCP lands farther than this (mm) from the common point means the TCP slipped off it.
+MAX_TCP_RESIDUAL_MM = 1.0
+
+
+@dataclass(frozen=True)
+class TcpCalibration:
+    """The four-point TCP calibration: ``tcp_in_flange`` (3,) mm, the fixed point ``point_in_base`` (3,) mm, each
+    pose's distance from it (``residuals_mm``), their RMS, and the least turn about any axis (``spread_deg``)."""
+
+    tcp_in_flange: np.ndarray
+    point_in_base: np.ndarray
+    residuals_mm: np.ndarray
+    rms_mm: float
+    spread_deg: float
+
+    @property
+    def tool_to_flange(self):
+        """(4, 4) ``ToolToFlange``: a translation by the TCP offset (the TCP frame keeps the flange's axes)."""
+        return make_transform(translation=self.tcp_in_flange)
+
+    def to_dict(self):
+        return {
+            "tcp_in_flange_mm": self.tcp_in_flange.tolist(),
+            "point_in_base_mm": self.point_in_base.tolist(),
+            "residuals_mm": self.residuals_mm.tolist(),
+            "rms_mm": self.rms_mm,
+            "spread_deg": self.spread_deg,
+        }
+
+
+def tcp_four_point(flange_to_base, max_residual_mm=MAX_TCP_RESIDUAL_MM):
+    """The TCP offset from (N >= 4, 4, 4) ``FlangeToRobotBase`` poses taken with the TCP held on one point ([29]).
+
+    Raises:
+        ValueError: fewer than 4 poses, a pose that is not rigid, two poses with (nearly) the same orientation, turns
+            about one axis only (coplanar flange positions), or a TCP that slipped (a residual over
+            ``max_residual_mm``): each saying what to do.
+    """
+    try:
+        poses = np.array(flange_to_base, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"flange poses: cannot read as numbers ({error}); pass (N, 4, 4) matrices") from None
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"flange poses: expected an (N, 4, 4) array of FlangeToRobotBase, got shape {poses.shape}")
+    if len(poses) < MIN_TCP_POSES:
+        raise ValueError(
+            f"four-point TCP calibration: {len(poses)} flange poses given, at least {MIN_TCP_POSES} needed; hold the "
+            "TCP on the point and turn the flange to more orientations"
+        )
+    for number, pose in enumerate(poses, start=1):
+        as_transform(pose, f"flange pose {number}")
+    rotations = poses[:, :3, :3]
+    turns = np.degrees(np.arccos(np.clip((np.einsum("aij,bij->ab", rotations, rotations) - 1.0) / 2.0, -1.0, 1.0)))
+    np.fill_diagonal(turns, np.inf)
+    first, second = np.unravel_index(np.argmin(turns), turns.shape)
+    if turns[first, second] < MIN_TCP_TURN_DEG:
+        first, second = sorted((int(first) + 1, int(second) + 1))
+        raise ValueError(
+            f"flange poses {first} and {second} repeat one orientation ({turns[first - 1, second - 1]:.1f} degrees "
+            f"apart); turn the flange at least {MIN_TCP_TURN_DEG:g} degrees between poses"
+        )
+    spread = _least_turn_deg(rotations)
+    if spread < MIN_TCP_SPREAD_DEG:
+        raise ValueError(
+            f"the flange poses turn about one axis only (their positions lie in one plane; {spread:.1f} degrees about "
+            "the least-turned axis), so the TCP's offset along that axis is undetermined; tilt the flange about a "
+            f"second axis by at least {MIN_TCP_SPREAD_DEG:g} degrees"
+        )
+    tcp, point = fixed_point_fit(poses)
+    residuals = np.linalg.norm(rotations @ tcp + poses[:, :3, 3] - point, axis=1)
+    worst = int(np.argmax(residuals))
+    if residuals[worst] > max_residual_mm:
+        raise ValueError(
+            f"flange pose {worst + 1} puts the TCP {residuals[worst]:.2f} mm from the common point (at most "
+            f"{max_residual_mm:g} mm); the TCP slipped off the point: record that pose again"
+        )
+    return TcpCalibration(
+        tcp_in_flange=tcp,
+        point_in_base=point,
+        residuals_mm=residuals,
+        rms_mm=float(np.sqrt(np.mean(residuals**2))),
+        spread_deg=spread,
+    )
+
+
+def _least_turn_deg(rotations):
+    """RMS turn (degrees) of (N, 3, 3) rotations about the axis they turn least about.
+
+    The fit's unknown TCP offset is undetermined along a direction ``a`` that every rotation leaves in place
+    (``R_i a`` the same for all i): the smallest singular value of the stacked ``R_i - mean(R)`` measures how far
+    the rotations move their least-moved direction, ``2 sin(turn / 2)`` per pose.
+    """
+    centred = rotations - rotations.mean(axis=0)
+    smallest = np.linalg.svd(centred.reshape(-1, 3), compute_uv=False)[-1] / np.sqrt(len(rotations))
+    return float(np.degrees(2.0 * np.arcsin(min(1.0, smallest / 2.0))))

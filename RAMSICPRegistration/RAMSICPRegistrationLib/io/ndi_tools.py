@@ -18,6 +18,9 @@ DEFAULT_REFERENCE_TOOL = "8700339"
 #: NDI passive probe (pointer) used by the simulator and the tracker server: tool 8700340.
 DEFAULT_PROBE_TOOL = "8700340"
 
+#: NDI passive tool whose markers are fixed to the robot's cutting tool in the simulations (tracked as ToolToTracker).
+DEFAULT_CUTTING_TOOL = "8700449"
+
 #: Diameter of NDI passive marker spheres (mm), as in the paper.
 MARKER_DIAMETER_MM = 11.5
 

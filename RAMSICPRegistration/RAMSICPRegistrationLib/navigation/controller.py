@@ -19,16 +19,29 @@ do when an input is missing, as a script expects. A shell calls them through ``r
 turns what goes wrong into a message (``status().message`` and the 'message' event) and never raises;
 ``availability()`` tells beforehand which actions can run and why not (for enabling buttons); ``status()`` is a
 snapshot for a shell's periodic refresh; ``add_listener`` reports events as they happen.
+
+Plan and cut (``cutting``): ``plan_cut`` plans the osteotomy on the selected markups plane (endpoints, tool path,
+the wedge's second cut), ``save_plan`` writes it as JSON, ``send_tool_path`` sends the path in robot-base
+coordinates (``ImageToRobotBase``, eq. 4) to the robot controller over OpenIGTLink and ``stop_robot`` stops it.
+While the tracked cutting tool (``toolToTracker`` with ``toolTipToTool``) moves, ``status().guidance`` gives its
+distance and angle to the plan and its depth to the far cortex (``core.guidance``), green within the parameter
+node's tolerances; ``status()`` also takes in what the robot has reported since the last call. A plane moved or a
+setting changed after planning makes the plan out of date: the path is not sent until it is planned again.
 """
 
+import json
 import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from ..core.guidance import cut_guidance
 from ..core.hold_still import HoldStillDetector
+from ..core.tool_path import plan_document
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
+from . import cutting
 from .navigation import NavigationLogic, matrix_of, points_of
 from .parameters import Parameters, get_parameter_node
 
@@ -38,7 +51,11 @@ logger = logging.getLogger(__name__)
 STALE_AFTER_S = 1.0
 
 #: The transforms whose poses the controller follows: parameter name -> the name shown to the user.
-WATCHED = {"probeToReference": "ProbeToReference", "referenceToTracker": "ReferenceToTracker"}
+WATCHED = {
+    "probeToReference": "ProbeToReference",
+    "referenceToTracker": "ReferenceToTracker",
+    "toolToTracker": "ToolToTracker",
+}
 
 #: The controller's actions, by method name: what a shell may ``run``.
 ACTIONS = (
@@ -53,6 +70,10 @@ ACTIONS = (
     "register",
     "set_included",
     "robot_calibration",
+    "plan_cut",
+    "save_plan",
+    "send_tool_path",
+    "stop_robot",
     "save",
 )
 
@@ -98,6 +119,10 @@ class NavigationStatus:
     message: str = ""
     message_is_error: bool = False
     tip_reference_mm: tuple = None  # (x, y, z) of the calibrated tip in reference coordinates, while tracked
+    guidance: object = None  # core.guidance.CutGuidance of the tracked cutting tool, when there is a plan
+    cut: str = ""  # the plan in words ("" before planning)
+    robot: str = ""  # the robot's state in words ("" before a path was sent)
+    robot_progress: tuple = None  # (poses passed, poses in the path) while a path is out
 
     def tool(self, label):
         return next(tool for tool in self.tools if tool.label == label)
@@ -137,15 +162,25 @@ class NavigationController:
         scene: the vtkMRMLScene (``slicer.mrmlScene`` inside Slicer, a ``slicer-core`` scene elsewhere).
         autosave_directory: every collected point list is written there at once, atomically.
         clock: monotonic clock in seconds (for tracking ages).
+        robot_link_factory: callable(host, port) -> a connected link to the robot controller with ``send_path``,
+            ``poll``, ``stop``, ``close`` (``OpenIGTLinkBridgeLib.robot_link.RobotLink``, the default).
         stale_after_s: a watched transform without a new pose for longer than this is stale.
         pose_time: optional callable(node) -> the time (s) the node's new pose was measured, for hold-still
             collection; by default the clock when the pose arrives. Our receiver knows each frame's time stamp.
     """
 
     def __init__(
-        self, scene, autosave_directory=None, clock=time.monotonic, stale_after_s=STALE_AFTER_S, pose_time=None
+        self,
+        scene,
+        autosave_directory=None,
+        clock=time.monotonic,
+        stale_after_s=STALE_AFTER_S,
+        pose_time=None,
+        robot_link_factory=None,
     ):
         self.scene = scene
+        self.robot_link_factory = robot_link_factory
+        self.robot = None  # the link to the robot controller, once a path was sent
         self.steps = NavigationLogic(scene, autosave_directory)
         self.clock, self.stale_after_s = clock, stale_after_s
         self.pose_time = pose_time
@@ -192,7 +227,8 @@ class NavigationController:
         self._listeners.remove(callback)
 
     def close(self):
-        """Remove every observer this controller added (the shell is going away)."""
+        """Remove every observer this controller added and stop the robot (the shell is going away)."""
+        self._drop_robot("the navigation closed")
         self._detach_all()
         for tag in self._scene_tags:
             self.scene.RemoveObserver(tag)
@@ -211,6 +247,7 @@ class NavigationController:
         self._hold_still = None  # the HoldStillDetector while hold-still collection is on
         self._probe_frames = 0
         self._message = ("", False)
+        self._cut = None  # cutting.PlannedCut
 
     def _attach_parameter_node(self):
         node = get_parameter_node(self.scene)
@@ -260,6 +297,7 @@ class NavigationController:
     def _on_scene_start_close(self, caller=None, event=None):
         if self._pivot_poses is not None or self._auto_collect or self._hold_still is not None:
             logger.info("scene closing: pivot recording and point collection stopped")
+        self._drop_robot("the scene closed")
         self._detach_all()
         self._reset_state()
         self.last_result = None
@@ -329,6 +367,9 @@ class NavigationController:
             message=self._message[0],
             message_is_error=self._message[1],
             tip_reference_mm=self._tip_reference_mm(parameters),
+            guidance=self._guidance(parameters),
+            cut=self._cut_text(parameters),
+            **self._robot_report(),
         )
 
     def _tip_reference_mm(self, parameters):
@@ -399,9 +440,30 @@ class NavigationController:
                 (parameters.referenceToImage, "register first (step 4)"),
             ),
             "set_included": None if parameters.residualTable is not None else "register once first",
+            "plan_cut": _first_missing(
+                (parameters.osteotomyPlane, "place a plane on the bone (Markups toolbar) and select it"),
+                (parameters.ipcModel, "build the IPC from the CT (step 1) or select an IPC model"),
+            ),
+            "save_plan": self._plan_problem(parameters),
+            "send_tool_path": self._plan_problem(parameters) or self._robot_problem(parameters),
+            "stop_robot": None if self.robot is not None and self.robot.connected else "no path was sent to the robot",
             "save": None,
         }
         return reasons
+
+    def _plan_problem(self, parameters):
+        if self._cut is None:
+            return "plan the cut first"
+        if cutting.cut_inputs(parameters) != self._cut.inputs:
+            return "the plane or a setting of the cut changed since it was planned; plan the cut again"
+        return None
+
+    def _robot_problem(self, parameters):
+        if parameters.imageToRobotBase is None:
+            return "calibrate the robot first (step 6): the path goes to the robot through ImageToRobotBase"
+        if self.robot is not None and self.robot.connected and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
+            return "the robot is still on the last path; wait for it or stop it"
+        return None
 
     def _tracking_problem(self, parameters):
         if parameters.probeToReference is None:
@@ -597,7 +659,163 @@ class NavigationController:
         self._say("robot calibrated: ImageToRobotBase written")
         return nodes
 
-    # -- 7. save -------------------------------------------------------------------------------------------
+    # -- 7. plan and cut -----------------------------------------------------------------------------------
+    def plan_cut(self):
+        """Plan the osteotomy on the selected plane (``cutting``): each cut's endpoints, the tool path and, for a
+        wedge, the second cut, written into the scene. With no verification targets selected yet the endpoints
+        become them (the paper's targets). Returns the ``cutting.PlannedCut``."""
+        self._require("plan_cut")
+        parameters = self.parameters
+        planned = cutting.plan_from_nodes(parameters)
+        cutting.write_plan_nodes(self.scene, parameters, planned)
+        self._cut = cutting.PlannedCut(planned.plans, planned.path, cutting.cut_inputs(parameters))
+        if parameters.targetsImage is None:
+            parameters.targetsImage = parameters.cutEndpoints
+        self._say(self._cut_text(parameters))
+        self._notify("planned", self._cut)
+        return self._cut
+
+    def save_plan(self, path):
+        """Write the plan as JSON (``core.tool_path.plan_document``; in robot-base coordinates too once the robot is
+        calibrated); returns the path."""
+        self._require("save_plan")
+        parameters = self.parameters
+        image_to_base = None if parameters.imageToRobotBase is None else matrix_of(parameters.imageToRobotBase)
+        document = plan_document(self._cut.plans, self._cut.path, image_to_base)
+        path = Path(path)
+        if path.is_dir():
+            raise WorkflowError(f"{path} is a folder; give a file name ending in .json")
+        try:
+            path.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        except OSError as error:
+            raise WorkflowError(f"cannot write the plan to {path} ({error.strerror or error})") from None
+        self._say(f"plan written to {path}")
+        return path
+
+    def send_tool_path(self, timeout_s=2.0):
+        """Send the tool path in robot-base coordinates (``ImageToRobotBase`` @ each pose, eq. 4) to the robot
+        controller at ``robotHost``:``robotPort`` and wait up to ``timeout_s`` for its answer; returns the ToolPath
+        sent. A refusal raises WorkflowError with the robot's reason."""
+        self._require("send_tool_path")
+        parameters = self.parameters
+        path = self._cut.path.in_robot_base(matrix_of(parameters.imageToRobotBase, "ImageToRobotBase"))
+        host, port = parameters.robotHost.strip(), parameters.robotPort
+        if not host:
+            raise WorkflowError("the robot controller's address is empty; give its host, e.g. 127.0.0.1")
+        clock = time.perf_counter()
+        try:
+            if self.robot is None or not self.robot.connected or (self.robot.host, self.robot.port) != (host, port):
+                self._drop_robot("another robot address")
+                self.robot = self._connect_robot(host, port)
+            self.robot.send_path(path.poses)
+        except OSError as error:
+            raise WorkflowError(str(error)) from None
+        state = self.robot.wait_for(("ACCEPTED", "REFUSED", "MOVING", "DONE"), timeout_s)
+        if state == "REFUSED":
+            raise WorkflowError(f"the robot refused the path: {self.robot.status_text}")
+        if state not in ("ACCEPTED", "MOVING", "DONE"):
+            raise WorkflowError(
+                f"the robot at {host}:{port} did not accept the path within {timeout_s:g} s ({self.robot.status_text})"
+            )
+        self._say(
+            f"path sent to the robot at {host}:{port}: {len(path.poses)} poses, {path.passes} passes, "
+            f"{path.length_mm:.0f} mm, accepted {1000 * (time.perf_counter() - clock):.0f} ms after sending began"
+        )
+        self._notify("path-sent", path)
+        return path
+
+    def stop_robot(self):
+        """Tell the robot to stop where it is."""
+        self._require("stop_robot")
+        try:
+            self.robot.stop()
+        except OSError as error:
+            raise WorkflowError(str(error)) from None
+        self._say("STOP sent to the robot")
+
+    def _connect_robot(self, host, port):
+        factory = self.robot_link_factory
+        if factory is None:
+            from OpenIGTLinkBridgeLib.robot_link import RobotLink as factory
+        return factory(host, port)
+
+    def _drop_robot(self, why):
+        """Stop the robot and close the link (a navigation that goes away must not leave the robot moving)."""
+        if self.robot is None:
+            return
+        try:
+            if self.robot.connected and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
+                self.robot.stop()
+                logger.warning("robot stopped: %s", why)
+        except OSError:
+            pass
+        self.robot.close()
+        self.robot = None
+
+    def _guidance(self, parameters):
+        """CutGuidance of the tracked tool while it and the reference body are tracked and a plan exists."""
+        if self._cut is None or any(
+            self.tool_state(name).state != "valid" for name in ("toolToTracker", "referenceToTracker")
+        ):
+            return None
+        try:
+            pose = cutting.tool_tip_to_image(parameters)
+            if pose is None:
+                return None
+            return cut_guidance(
+                self._cut.plans,
+                pose,
+                tool=parameters.cuttingTool,
+                width_mm=parameters.toolWidthMm,
+                distance_tolerance_mm=parameters.guidanceDistanceMm,
+                angle_tolerance_deg=parameters.guidanceAngleDeg,
+            )
+        except (ValueError, TypeError):
+            return None
+
+    def _cut_text(self, parameters):
+        if self._cut is None:
+            return ""
+        path, plans = self._cut.path, self._cut.plans
+        cuts = "one cut" if len(plans) == 1 else f"a {parameters.wedgeAngleDeg:g} degree wedge of two cuts"
+        text = (
+            f"plan: {cuts}, endpoints {'E1-E4' if len(plans) == 1 else 'E1-E4 and W1-W4'}; {path.tool} path "
+            f"{len(path.poses)} poses in {path.passes} passes, {path.length_mm:.0f} mm"
+        )
+        predicted = self._predicted_endpoint_errors()
+        if predicted is not None:
+            text += f"; predicted registration error at the endpoints {predicted.min():.2f}-{predicted.max():.2f} mm"
+        if self._plan_problem(parameters) is not None:
+            text = "OUT OF DATE, plan again: " + text
+        return text
+
+    def _predicted_endpoint_errors(self):
+        """The registration's predicted error (mm) at each endpoint (cr-fused), else None."""
+        result = self.last_result
+        if result is None or getattr(result, "pose_covariance", None) is None:
+            return None
+        return np.asarray(result.predicted_error_mm(self._cut.endpoints))
+
+    def _robot_report(self):
+        link = self.robot
+        if link is None:
+            return {"robot": "", "robot_progress": None}
+        try:
+            link.poll()
+        except OSError as error:
+            logger.warning("robot link: %s", error)
+        words = {
+            "SENT": "path sent, waiting for its answer",
+            "ACCEPTED": "path accepted",
+            "MOVING": f"moving: pose {link.passed} of {link.path_size}",
+            "DONE": "done: the whole path was run",
+            "REFUSED": f"refused the path: {link.status_text}",
+            "STOPPED": f"stopped: {link.status_text}",
+            "DISCONNECTED": f"disconnected: {link.status_text}",
+        }.get(link.state, link.state.lower())
+        return {"robot": f"robot at {link.host}:{link.port}: {words}", "robot_progress": (link.passed, link.path_size)}
+
+    # -- 8. save -------------------------------------------------------------------------------------------
     def save(self, path):
         """Save the scene and its data as ``path`` (.mrml), for plain Python and the browser view; returns the files
         written (the scene first)."""

@@ -67,6 +67,24 @@ def model_node(scene, points, triangles=None, name="IPC"):
     return node
 
 
+def polyline_model(scene, points, name):
+    """Add a ``vtkMRMLModelNode`` of one polyline through (N, 3) RAS points (a tool path), drawn as a line."""
+    from vtkmodules.vtkCommonDataModel import vtkCellArray
+
+    data = poly_data(points)
+    data.SetVerts(vtkCellArray())
+    line = vtkCellArray()
+    line.InsertNextCell(len(points))
+    for index in range(len(points)):
+        line.InsertCellPoint(index)
+    data.SetLines(line)
+    node = scene.AddNewNodeByClass("vtkMRMLModelNode", name)
+    node.SetAndObservePolyData(data)
+    node.CreateDefaultDisplayNodes()
+    node.GetDisplayNode().SetLineWidth(2.0)
+    return node
+
+
 def fiducial_node(scene, centres, labels=None, name="Marker centres (image)"):
     """Add a ``vtkMRMLMarkupsFiducialNode`` of marker centres (K, 3) RAS, drawn as 11.5 mm spheres."""
     node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", name)

@@ -11,12 +11,14 @@ module's singleton parameter node, found and created as ``ScriptedLoadableModule
 from dataclasses import dataclass
 
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
+from ..core.tool_path import TOOLS
 
 #: The Slicer module's name: the parameter node's singleton tag and its ``ModuleName`` attribute.
 MODULE_NAME = "RAMSICPRegistration"
 
 LINEAR_TRANSFORM = "vtkMRMLLinearTransformNode"
 FIDUCIALS = "vtkMRMLMarkupsFiducialNode"
+PLANE = "vtkMRMLMarkupsPlaneNode"
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,28 @@ PARAMETERS = (
     Parameter("trackerPositions", "node", "the same positions in tracker coordinates", FIDUCIALS),
     Parameter("robotBaseToTracker", "node", "robot calibration, eq. 3 (written)", LINEAR_TRANSFORM),
     Parameter("imageToRobotBase", "node", "image to robot base, eq. 4 (written)", LINEAR_TRANSFORM),
+    # 7. plan and cut
+    Parameter("osteotomyPlane", "node", "the planned cut; the blade advances along its y axis", PLANE),
+    Parameter(
+        "cutExtentMm", "float", "cut width across the bone (mm; 0: all of it)", default=0.0, minimum=0.0, maximum=300.0
+    ),
+    Parameter(
+        "wedgeAngleDeg", "float", "closing-wedge angle (degrees; 0: one cut)", default=0.0, minimum=0.0, maximum=30.0
+    ),
+    Parameter("wedgePlane", "node", "the wedge's second cut (written)", PLANE),
+    Parameter("cuttingTool", "choice", "saw or burr", default="saw", choices=TOOLS),
+    Parameter("toolWidthMm", "float", "saw blade width or burr diameter (mm)", default=10.0, minimum=0.5, maximum=50.0),
+    Parameter(
+        "farMarginMm", "float", "stop this far before the far cortex (mm)", default=2.0, minimum=0.0, maximum=30.0
+    ),
+    Parameter("cutEndpoints", "node", "the cut's four endpoints on the bone (written)", FIDUCIALS),
+    Parameter("toolPath", "node", "the planned tool path, TCP positions (written)", "vtkMRMLModelNode"),
+    Parameter("toolToTracker", "node", "tracked cutting tool", LINEAR_TRANSFORM),
+    Parameter("toolTipToTool", "node", "the cutting tool's TCP in its marker frame", LINEAR_TRANSFORM),
+    Parameter("guidanceDistanceMm", "float", "on plan within (mm)", default=1.0, minimum=0.1, maximum=10.0),
+    Parameter("guidanceAngleDeg", "float", "on plan within (degrees)", default=2.0, minimum=0.1, maximum=20.0),
+    Parameter("robotHost", "text", "the robot controller's OpenIGTLink address", default="127.0.0.1"),
+    Parameter("robotPort", "int", "the robot controller's OpenIGTLink port", default=18945, minimum=1, maximum=65535),
 )
 
 

@@ -4,7 +4,8 @@ It follows the paper's set-up ("Data acquisition", "Experimental preparation"), 
 
 * ``long-bone`` (tibia, fibula): 8 probe sub-areas SA1-SA8 (4 levels x 2 columns) on the smooth medial face
   of the proximal shaft, below a planned high tibial osteotomy; the 4 targets are the medial, lateral,
-  anterior and posterior ends of the cut.
+  anterior and posterior ends of the cut, the endpoints of a horizontal cut across the whole bone planned on the
+  IPC (``core.osteotomy.plan_cut``).
 * ``flat-bone`` (the ilium, the paper's own subject): the sub-areas on the smooth lateral (gluteal) face of the
   wing (Fig. 4c), 4 levels x 2 columns below a planned cut across the upper wing; the 4 targets are the
   endpoints of that 40 mm cut on the lateral and the medial surface, the corners of the resected face (Fig. 6b).
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.metrics import target_registration_error
+from ..core.osteotomy import plan_cut
 from ..core.paired_point import rigid_procrustes
 from ..core.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
 
@@ -216,10 +218,10 @@ def _section_centre(points, height, half_thickness=1.0):
 
 
 def _cut_end_points(ipc, height, medial, anterior):
-    """The medial, lateral, anterior and posterior ends of the bone's cross-section at ``height``."""
-    section = ipc[np.abs(ipc[:, 2] - height) < 0.3]
-    ends = [section[np.argmax(section @ direction)] for direction in (medial, -medial, anterior, -anterior)]
-    return np.array(ends)
+    """The medial, lateral, anterior and posterior ends of the bone's cross-section at ``height``: the endpoints
+    of a horizontal cut across the whole bone (``core.osteotomy``), across medial and the blade advancing anterior.
+    """
+    return plan_cut(ipc, (0.0, 0.0, height), np.cross(medial, anterior), depth=anterior).endpoints
 
 
 def _medial_face_sub_areas(points, normals, cut_height, medial, anterior, radius_mm=6.0):

@@ -1,0 +1,301 @@
+"""The osteotomy plan in image space: a cut plane, the bone's section in it and the cut's four endpoints.
+
+The paper's ORS plans the osteotomy on the CT and measures its result at "four distinct endpoints on the resected
+surface" (Fig. 6b, the targets of eq. 11). A cut here is a plane in image (RAS) coordinates, mm:
+
+* ``origin`` (3,) a point of the plane, the middle of the cut; ``normal`` (3,) its unit normal;
+* ``depth`` (3,) the in-plane direction along which the blade advances, from its entry side to the far cortex;
+* ``across`` (3,) = depth x normal, the width of the cut, so that (across, depth, normal) is right-handed;
+* ``extent_mm``: the cut's width across the bone, centred on the origin, or None to cut across the whole bone.
+
+The bone's **section** in the plane comes from the IPC: exactly, where the plane crosses the surface's triangles
+when the IPC is a mesh, or as the IPC points within ``half_thickness_mm`` of the plane when it is a point cloud.
+The four **endpoints** (4, 3) are where the cut meets the bone's surface:
+
+* a cut across the whole bone: the section's ends along +across, -across, +depth (the far end) and -depth (the
+  entry end). A tibia cut horizontally with across medial and depth anterior gives the medial, lateral, anterior
+  and posterior ends of a high tibial osteotomy, the demo's targets;
+* a cut limited to ``extent_mm``: the corners where its two side lines (across = -extent/2 and +extent/2) enter
+  and leave the bone, in the order (-side, entry), (-side, far), (+side, entry), (+side, far).
+
+A closing wedge (high tibial osteotomy) is two such cuts meeting at a hinge line: ``wedge_plane`` turns a cut about
+a line across it at a chosen depth.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .transforms import rotation_about_axis
+from .validation import as_points
+
+#: IPC points this close to the plane (mm) make a point cloud's section (a mesh's section is exact).
+SECTION_HALF_THICKNESS_MM = 0.3
+#: Half-width (mm) of the strip of a point cloud's section read as the bone's depth at one position across.
+STRIP_HALF_WIDTH_MM = 0.5
+#: Positions across the cut are sampled this far apart (mm) when the far cortex is sought under a blade.
+SPAN_STEP_MM = 0.5
+
+WHOLE_BONE_LABELS = ("+across end", "-across end", "far end", "entry end")
+EXTENT_LABELS = ("-side entry", "-side far", "+side entry", "+side far")
+
+
+@dataclass(frozen=True)
+class CutPlane:
+    """A cut plane in image coordinates (mm): see the module docstring for the axes."""
+
+    origin: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+
+    @property
+    def across(self):
+        """(3,) the cut's width direction: depth x normal."""
+        return np.cross(self.depth, self.normal)
+
+    @property
+    def axes(self):
+        """(3, 3) columns across, depth, normal."""
+        return np.column_stack((self.across, self.depth, self.normal))
+
+    def to_plane(self, points):
+        """(N, 3) image points -> (N, 3) plane coordinates (across, depth, height above the plane), mm."""
+        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes
+
+    def from_plane(self, coordinates):
+        """(N, 2) or (N, 3) plane coordinates (across, depth[, height]) -> (N, 3) image points, mm."""
+        coordinates = np.asarray(coordinates, dtype=np.float64)
+        return self.origin + coordinates @ self.axes[:, : coordinates.shape[1]].T
+
+    def to_dict(self):
+        return {
+            "origin": self.origin.tolist(),
+            "normal": self.normal.tolist(),
+            "across": self.across.tolist(),
+            "depth": self.depth.tolist(),
+        }
+
+
+@dataclass(frozen=True)
+class Section:
+    """The bone's section in a cut plane: ``points`` (K, 3) on the surface and their ``uv`` (K, 2) plane
+    coordinates (across, depth). From a mesh, consecutive pairs of points are the crossing segments (``exact``);
+    from a point cloud they are the IPC points near the plane."""
+
+    points: np.ndarray
+    uv: np.ndarray
+    exact: bool
+
+    def depth_range_at(self, across_mm):
+        """(entry depth, far depth) in mm of the section along the line across = ``across_mm``; None off the bone."""
+        depths = self._depths_at(across_mm)[0]
+        return None if depths.size == 0 else (float(depths.min()), float(depths.max()))
+
+    def span_depth_range(self, low_mm, high_mm):
+        """(entry, far) depth in mm under a blade covering across = [low_mm, high_mm]: the nearest entry and the
+        nearest far cortex over the span, so that no part of the blade's edge passes either; None off the bone."""
+        count = max(2, int(np.ceil((high_mm - low_mm) / SPAN_STEP_MM)) + 1)
+        entries, fars = [], []
+        for position in np.linspace(low_mm, high_mm, count):
+            found = self.depth_range_at(position)
+            if found is not None:
+                entries.append(found[0])
+                fars.append(found[1])
+        return None if not fars else (min(entries), min(fars))
+
+    @property
+    def across_range(self):
+        """(lowest, highest) across coordinate of the section, mm."""
+        return float(self.uv[:, 0].min()), float(self.uv[:, 0].max())
+
+    def _depths_at(self, across_mm):
+        """Depths (mm) and image points where the section crosses the line across = ``across_mm``."""
+        if not self.exact:
+            near = np.abs(self.uv[:, 0] - across_mm) <= STRIP_HALF_WIDTH_MM
+            return self.uv[near, 1], self.points[near]
+        first, second = self.uv[0::2], self.uv[1::2]
+        offset_first, offset_second = first[:, 0] - across_mm, second[:, 0] - across_mm
+        crossing = (offset_first * offset_second <= 0.0) & (offset_first != offset_second)
+        fraction = offset_first[crossing] / (offset_first[crossing] - offset_second[crossing])
+        depths = first[crossing, 1] + fraction * (second[crossing, 1] - first[crossing, 1])
+        points_first, points_second = self.points[0::2][crossing], self.points[1::2][crossing]
+        return depths, points_first + fraction[:, None] * (points_second - points_first)
+
+
+@dataclass(frozen=True)
+class CutPlan:
+    """One planned cut: its plane, its width across the bone (None: the whole bone), the bone's section in it and
+    the four endpoints (4, 3) in image coordinates (mm) with their labels."""
+
+    plane: CutPlane
+    extent_mm: object
+    section: Section
+    endpoints: np.ndarray
+    endpoint_labels: tuple
+
+    def to_dict(self):
+        """JSON-ready: ``plane``, ``extent_mm``, ``endpoints`` (4 x 3) and ``endpoint_labels``."""
+        return {
+            "plane": self.plane.to_dict(),
+            "extent_mm": self.extent_mm,
+            "endpoints": self.endpoints.tolist(),
+            "endpoint_labels": list(self.endpoint_labels),
+        }
+
+
+def cut_plane(origin, normal, depth=None):
+    """A CutPlane from an origin (3,) and a normal (3,) in image coordinates (mm); ``depth`` (3,) is projected
+    into the plane. Without ``depth`` a provisional in-plane axis is used (``plan_cut`` chooses a better one).
+
+    Raises:
+        ValueError: NaN, a zero normal, or a depth direction along the normal.
+    """
+    origin, normal = _vector3(origin, "cut plane origin"), _vector3(normal, "cut plane normal")
+    length = np.linalg.norm(normal)
+    if length < 1e-9:
+        raise ValueError("cut plane normal is (0, 0, 0); give the direction the plane faces, e.g. 0 0 1")
+    normal = normal / length
+    if depth is None:
+        axis = np.eye(3)[np.argmin(np.abs(normal))]  # the coordinate axis least along the normal
+        depth = np.cross(normal, np.cross(axis, normal))
+    else:
+        given = _vector3(depth, "cut depth direction")
+        depth = given - (given @ normal) * normal
+        if np.linalg.norm(depth) <= 1e-6 * np.linalg.norm(given):
+            raise ValueError("the cut's depth direction lies along the plane's normal; give a direction in the plane")
+    return CutPlane(origin=origin, normal=normal, depth=depth / np.linalg.norm(depth))
+
+
+def bone_section(plane, points, triangles=None, half_thickness_mm=SECTION_HALF_THICKNESS_MM):
+    """The bone's Section in ``plane``: the crossing of the mesh (``points`` (V, 3) vertices, ``triangles`` (K, 3))
+    with the plane, or the IPC ``points`` (N, 3) within ``half_thickness_mm`` of it when no triangles are given.
+
+    Raises:
+        ValueError: the plane does not cross the bone.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    heights = (points - plane.origin) @ plane.normal
+    if triangles is not None and len(triangles):
+        crossing = _mesh_crossing(points, np.asarray(triangles), heights)
+        exact = True
+    else:
+        crossing = points[np.abs(heights) < half_thickness_mm]
+        exact = False
+    if len(crossing) == 0:
+        within = "" if exact else f" (no IPC point lies within {half_thickness_mm:g} mm of it)"
+        raise ValueError(
+            f"the cut plane through {_vector(plane.origin)} facing {_vector(plane.normal)} does not cross the "
+            f"bone{within}; move the plane onto the bone"
+        )
+    return Section(points=crossing, uv=plane.to_plane(crossing)[:, :2], exact=exact)
+
+
+def plan_cut(points, origin, normal, depth=None, extent_mm=None, triangles=None):
+    """Plan one cut on the bone: its plane, section and four endpoints (module docstring).
+
+    Args:
+        points: (N, 3) IPC in image coordinates (mm): the mesh's vertices with ``triangles`` (K, 3), or a cloud.
+        origin, normal: (3,) a point of the plane (the cut's middle) and its normal.
+        depth: (3,) the direction the blade advances, entry to far cortex (projected into the plane). Default:
+            along the section's narrowest width (the shortest reach for the blade), the sign making the largest of
+            its R, A, S components positive.
+        extent_mm: the cut's width across the bone, centred on the origin; None for the whole bone.
+
+    Raises:
+        ValueError: bad numbers, a plane off the bone, or an extent whose one side only reaches past the bone.
+    """
+    if extent_mm is not None and not (np.isfinite(extent_mm) and extent_mm > 0):
+        raise ValueError(f"cut extent {extent_mm} mm: give a width above 0 mm, or none to cut across the whole bone")
+    points = as_points(points, "IPC", min_count=3)
+    plane = cut_plane(origin, normal, depth)
+    section = bone_section(plane, points, triangles)
+    if depth is None:
+        plane = CutPlane(plane.origin, plane.normal, _narrowest_direction(plane, section.uv))
+        section = Section(section.points, plane.to_plane(section.points)[:, :2], section.exact)
+    low, high = section.across_range
+    if extent_mm is None or (-extent_mm / 2.0 <= low and extent_mm / 2.0 >= high):
+        endpoints = _whole_bone_ends(section)
+        labels = WHOLE_BONE_LABELS
+    else:
+        endpoints = _extent_corners(section, extent_mm)
+        labels = EXTENT_LABELS
+    return CutPlan(plane, None if extent_mm is None else float(extent_mm), section, endpoints, labels)
+
+
+def wedge_plane(plan, angle_deg, hinge_depth_mm):
+    """The second cut of a closing wedge: ``plan``'s plane turned by ``angle_deg`` about the hinge line (across,
+    through depth ``hinge_depth_mm`` of the first cut), so that on the entry side it lies on the first cut's
+    +normal side; the wedge between the two cuts is removed and the bone closes on the hinge.
+
+    Returns (origin, normal, depth) of the second plane, its origin as far before the hinge as the first's.
+    """
+    if not (np.isfinite(angle_deg) and 0.0 < angle_deg < 90.0):
+        raise ValueError(f"wedge angle {angle_deg} degrees: give an angle between 0 and 90 degrees")
+    plane = plan.plane
+    turn = rotation_about_axis(plane.across, -np.radians(angle_deg))
+    hinge = plane.origin + hinge_depth_mm * plane.depth
+    depth = turn @ plane.depth
+    return hinge - hinge_depth_mm * depth, turn @ plane.normal, depth
+
+
+def _mesh_crossing(vertices, triangles, heights):
+    """(2S, 3) the end points of the segments where the triangles cross the plane, pair by pair."""
+    above = heights[triangles] >= 0.0
+    crossing = above.any(axis=1) & ~above.all(axis=1)
+    corners, levels, sides = vertices[triangles[crossing]], heights[triangles[crossing]], above[crossing]
+    ends = []
+    for first, second in ((0, 1), (1, 2), (2, 0)):
+        cut = sides[:, first] != sides[:, second]
+        with np.errstate(divide="ignore", invalid="ignore"):  # edges that are not cut are masked out below
+            fraction = levels[:, first] / (levels[:, first] - levels[:, second])
+        point = corners[:, first] + fraction[:, None] * (corners[:, second] - corners[:, first])
+        ends.append(np.where(cut[:, None], point, np.nan))
+    ends = np.stack(ends, axis=1)  # (S, 3 edges, 3): exactly two edges of a crossing triangle are cut
+    return ends[~np.isnan(ends[:, :, 0])].reshape(-1, 3)
+
+
+def _narrowest_direction(plane, uv):
+    """The in-plane unit direction (3,) of the section's smallest spread, its largest component made positive."""
+    centred = uv - uv.mean(axis=0)
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    direction = plane.axes[:, :2] @ vectors[:, 0]
+    return direction if direction[np.argmax(np.abs(direction))] > 0 else -direction
+
+
+def _whole_bone_ends(section):
+    ends = [section.points[np.argmax(section.uv @ d)] for d in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))]
+    return np.array(ends)
+
+
+def _extent_corners(section, extent_mm):
+    low, high = section.across_range
+    corners = []
+    for side in (-extent_mm / 2.0, extent_mm / 2.0):
+        if not low <= side <= high:
+            raise ValueError(
+                f"the cut's side at {side:+.1f} mm across lies off the bone (the bone spans {low:+.1f} to {high:+.1f} "
+                "mm across the plane's origin); centre the plane on the bone or change the extent"
+            )
+        depths, points = section._depths_at(side)
+        if depths.size == 0:
+            raise ValueError(
+                f"the IPC has no point within {STRIP_HALF_WIDTH_MM:g} mm of the cut's side at {side:+.1f} mm; give the "
+                "IPC as a surface (mesh) or a denser point cloud"
+            )
+        corners += [points[np.argmin(depths)], points[np.argmax(depths)]]
+    return np.array(corners)
+
+
+def _vector3(values, name):
+    """(3,) float64 from 3 finite numbers; ValueError naming ``name`` otherwise."""
+    try:
+        vector = np.array(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        vector = np.zeros(0)
+    if vector.shape != (3,) or not np.isfinite(vector).all():
+        raise ValueError(f"{name}: give 3 finite numbers (x, y, z), got {values!r}")
+    return vector
+
+
+def _vector(values):
+    return "(" + ", ".join(f"{value:.1f}" for value in values) + ")"
