@@ -3,8 +3,9 @@
 A thin Slicer shell over ``RAMSICPRegistrationLib.navigation.controller.NavigationController``, which holds every
 piece of behaviour (MRML event observers, tracking state, pivot recording, auto-collect, registration, scene-close
 clean-up) and is tested on slicer-core. The widget only binds the GUI to the parameter node, forwards clicks with
-``controller.run(...)`` and shows what the controller reports, the live guidance of the cut included. Supported: Slicer 5.6, 5.8 and 5.10 (every Slicer
-API used here is checked against their sources by ``Testing/test_module_files.py``).
+``controller.run(...)`` and shows what the controller reports, the live guidance of the cut included. Supported:
+Slicer 5.6, 5.8 and 5.10 (every Slicer API used here is checked against their sources by
+``Testing/test_module_files.py``).
 """
 
 import os
@@ -80,8 +81,8 @@ class RAMSICPRegistration(ScriptedLoadableModule):
             _(
                 "Patient-to-image registration for robot-assisted long-bone osteotomy: coarse registration on the "
                 "reference body's marker spheres, then range-adaptive ICP (CR-RAMSICP) on probe points. Steps: image, "
-                "tracker, patient points, register, verify, robot, plan and cut (live guidance, the path to the robot), "
-                "save. Feed the tracker with the OpenIGTLink Bridge module."
+                "tracker, patient points, register, verify, robot, plan and cut (the tool path to the robot, live "
+                "guidance), save. Feed the tracker with the OpenIGTLink Bridge module."
             )
             + f' <a href="{DOCUMENTATION_URL}">{_("Documentation")}</a>'
         )

@@ -23,6 +23,31 @@ def ellipsoid_points(count, semi_axes=(40.0, 25.0, 15.0), seed=0):
     return directions * np.asarray(semi_axes)
 
 
+#: Radius (mm) of the analytic cylinder the osteotomy tests cut.
+CYLINDER_RADIUS_MM = 15.0
+
+
+def cylinder_mesh(radius=CYLINDER_RADIUS_MM, segments=720, rings=28, height=100.0):
+    """Vertices on the cylinder x^2 + y^2 = radius^2, 0 <= z <= height, and the triangles of its side wall. The
+    rings are 3.7 mm apart, so no cut plane of these tests passes through a vertex."""
+    angles = np.radians(np.arange(segments) * 360.0 / segments)
+    heights = np.linspace(0.0, height, rings)
+    vertices = np.array([(radius * np.cos(a), radius * np.sin(a), z) for z in heights for a in angles])
+    triangles = []
+    for ring in range(rings - 1):
+        for k in range(segments):
+            a, b = ring * segments + k, ring * segments + (k + 1) % segments
+            triangles += [(a, b, a + segments), (b, b + segments, a + segments)]
+    return vertices, np.array(triangles)
+
+
+def cylinder_cloud(count=300_000, radius=CYLINDER_RADIUS_MM, height=100.0, seed=0):
+    """(count, 3) points uniformly on the same cylinder's side wall (21 a mm^2 by default)."""
+    rng = np.random.default_rng(seed)
+    angles, heights = rng.uniform(0, 2 * np.pi, count), rng.uniform(0, height, count)
+    return np.column_stack((radius * np.cos(angles), radius * np.sin(angles), heights))
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

@@ -1,5 +1,6 @@
 """The simulated operating room for the live demo and the tests: a reference body fixed in the tracker's view
-and a probe whose tip touches a list of points (reference coordinates), dwelling on each, then moving on.
+and a probe whose tip touches a list of points (reference coordinates), dwelling on each, then moving on; for the
+cut, the markers on the robot's cutting tool, wherever the robot simulator (``robot_simulator``) has moved it.
 
 Optionally the script starts with a pivot phase (the tip rests in a divot while the probe swivels about it, for
 the pivot calibration) and loops, so that a demo left running shows the whole workflow again and again. A
@@ -257,3 +258,39 @@ def serve_hand_held_probe(probe, port=0, rate_hz=60.0):
     """The started simulator of a HandHeldProbe and its OpenIGTLink server on 127.0.0.1; stop both."""
     simulator = VegaSimulator(Scenario(probe.poses, rate_hz=rate_hz)).start()
     return simulator, serve_simulator(simulator, port, rate_hz)
+def robot_tool_poses(robot, robot_base_to_tracker, marker_to_flange):
+    """ToolToTracker now (a function of time for a Scenario; the time is the robot's own): the markers fixed to
+    the robot's tool, ``MarkerToFlange`` (4, 4), wherever the robot simulator has really moved its flange."""
+    base_to_tracker = np.asarray(robot_base_to_tracker, dtype=np.float64)
+    marker_to_flange = np.asarray(marker_to_flange, dtype=np.float64)
+
+    def pose(time_s):
+        return base_to_tracker @ robot.flange_pose() @ marker_to_flange
+
+    return pose
+
+
+def cutting_simulator(
+    robot,
+    robot_base_to_tracker,
+    marker_to_flange,
+    reference_to_tracker=DEFAULT_REFERENCE_TO_TRACKER,
+    noise_mm=0.0,
+    seed=0,
+    rate_hz=60.0,
+    port=0,
+):
+    """A VegaSimulator (not started) that sees the reference body (NDI 8700339) and the cutting tool's markers
+    (NDI 8700449) on the robot simulator's tool; serve it with the names Reference and Tool."""
+    from RAMSICPRegistrationLib.io.ndi_tools import DEFAULT_CUTTING_TOOL, DEFAULT_REFERENCE_TOOL, tool_rom_path
+
+    reference_rom = tool_rom_path(DEFAULT_REFERENCE_TOOL).read_bytes()
+    tool_rom = tool_rom_path(DEFAULT_CUTTING_TOOL).read_bytes()
+    tool = robot_tool_poses(robot, robot_base_to_tracker, marker_to_flange)
+    reference = np.asarray(reference_to_tracker, dtype=np.float64)
+
+    def poses(time_s):
+        return {reference_rom: reference, tool_rom: tool(time_s)}
+
+    scenario = Scenario(poses, noise_mm=noise_mm, seed=seed, rate_hz=rate_hz)
+    return VegaSimulator(scenario, port=port)

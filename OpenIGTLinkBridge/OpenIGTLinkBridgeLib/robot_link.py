@@ -139,9 +139,11 @@ class RobotLink:
     Args:
         host, port: the robot controller's OpenIGTLink server.
         timeout_s: for connecting and for sending.
+        keep_poses: keep every reported ToolToRobotBase in ``poses`` (a test's or a recording's wish; a long cut at
+            125 Hz gives some 10 MB an hour).
     """
 
-    def __init__(self, host="127.0.0.1", port=ROBOT_PORT, timeout_s=2.0):
+    def __init__(self, host="127.0.0.1", port=ROBOT_PORT, timeout_s=2.0, keep_poses=False):
         self.host, self.port = host, port
         try:
             self.socket = socket.create_connection((host, port), timeout=timeout_s)
@@ -153,12 +155,14 @@ class RobotLink:
         self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.buffer = bytearray()
         self.state = "CONNECTED"  # then one of ROBOT_STATES, or DISCONNECTED
+        self.states_seen = set()  # every state the robot reported for the path now out (several may come at once)
         self.status_text = ""
         self.path_id = None
         self.path_size = 0
         self.passed = 0  # poses of the path the robot has passed
         self.pose = None  # the last ToolToRobotBase (4, 4)
         self.reports = 0  # ToolToRobotBase messages received
+        self.poses = [] if keep_poses else None
         self.skipped = 0
 
     @property
@@ -173,6 +177,7 @@ class RobotLink:
         data = encode_path(poses, path_id)
         self._send(data)
         self.path_id, self.path_size, self.passed, self.state = path_id, len(poses), 0, "SENT"
+        self.states_seen = set()
         self.status_text = f"path {path_id}: {len(poses)} poses sent"
         return path_id
 
@@ -217,24 +222,28 @@ class RobotLink:
         return len(messages)
 
     def wait_for(self, states, timeout_s):
-        """Poll until the robot reports one of ``states`` (or the connection is lost); returns the state."""
+        """Poll until the robot has reported one of ``states`` for the path now out (or the connection is lost);
+        returns the first of ``states`` it reported, else the state it is in."""
         deadline = time.monotonic() + timeout_s
-        while self.state not in states and self.state != "DISCONNECTED":
+        while not self.states_seen & set(states) and self.state != "DISCONNECTED":
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 break
             self.poll(min(remaining, 0.1))
-        return self.state
+        return next((state for state in states if state in self.states_seen), self.state)
 
     def _apply(self, message):
         if message.type == "TRANSFORM" and message.device == POSE_DEVICE:
             self.pose, self.reports = message.content, self.reports + 1
+            if self.poses is not None:
+                self.poses.append(message.content)
         elif message.type == "STATUS" and message.device == STATUS_DEVICE:
             name, text = message.content.error_name, message.content.text
             if name not in ROBOT_STATES:
                 self.skipped += 1
                 return
             self.state, self.status_text = name, text
+            self.states_seen.add(name)
             if name == "MOVING":
                 self.passed = int(text.split()[0]) if text.split() and text.split()[0].isdigit() else self.passed
             elif name == "DONE":

@@ -52,7 +52,7 @@ class CutGuidance:
         extent = "" if self.in_extent else ", outside the planned extent"
         verdict = "on plan" if self.on_plan else "OFF PLAN"
         return (
-            f"{cut}tip {self.distance_mm:+.1f} mm (edge {self.edge_distance_mm:.1f} mm), angle "
+            f"{cut}tip {round(self.distance_mm, 1) + 0.0:+.1f} mm (edge {self.edge_distance_mm:.1f} mm), angle "
             f"{self.angle_deg:.1f} deg, {far}{extent}: {verdict}"
         )
 

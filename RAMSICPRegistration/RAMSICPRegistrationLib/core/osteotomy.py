@@ -88,25 +88,64 @@ class Section:
 
     def depth_range_at(self, across_mm):
         """(entry depth, far depth) in mm of the section along the line across = ``across_mm``; None off the bone."""
-        depths = self._depths_at(across_mm)[0]
-        return None if depths.size == 0 else (float(depths.min()), float(depths.max()))
+        entry, far = self._envelope(np.array([float(across_mm)]))
+        return None if np.isnan(far[0]) else (float(entry[0]), float(far[0]))
 
     def span_depth_range(self, low_mm, high_mm):
         """(entry, far) depth in mm under a blade covering across = [low_mm, high_mm]: the nearest entry and the
-        nearest far cortex over the span, so that no part of the blade's edge passes either; None off the bone."""
+        nearest far cortex over the span, so that no part of the blade's edge passes either; None off the bone.
+
+        A mesh's section is piecewise linear between its vertices, so looking at the span's ends and at every
+        vertex within it finds both exactly; a point cloud's is looked at every ``SPAN_STEP_MM``.
+        """
         count = max(2, int(np.ceil((high_mm - low_mm) / SPAN_STEP_MM)) + 1)
-        entries, fars = [], []
-        for position in np.linspace(low_mm, high_mm, count):
-            found = self.depth_range_at(position)
-            if found is not None:
-                entries.append(found[0])
-                fars.append(found[1])
-        return None if not fars else (min(entries), min(fars))
+        positions = np.linspace(low_mm, high_mm, count)
+        if self.exact:
+            inside = self.uv[(self.uv[:, 0] > low_mm) & (self.uv[:, 0] < high_mm), 0]
+            positions = np.concatenate((positions, inside))
+        entry, far = self._envelope(positions)
+        hit = ~np.isnan(far)
+        return None if not hit.any() else (float(entry[hit].min()), float(far[hit].min()))
+
+    def nearest(self, points):
+        """(N, 3) the section's points nearest to each of ``points`` (N, 3): on its segments for a mesh's section,
+        among its IPC points for a point cloud's. Where a cut's edge passes a point of the bone, mm."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if not self.exact:
+            return self.points[np.argmin(np.linalg.norm(points[:, None] - self.points[None], axis=2), axis=1)]
+        first, second = self.points[0::2], self.points[1::2]
+        along = second - first
+        length2 = np.maximum(np.einsum("ij,ij->i", along, along), 1e-300)
+        fraction = np.clip(np.einsum("nsj,sj->ns", points[:, None] - first[None], along) / length2, 0.0, 1.0)
+        candidates = first[None] + fraction[..., None] * along[None]
+        best = np.argmin(np.linalg.norm(candidates - points[:, None], axis=2), axis=1)
+        return candidates[np.arange(len(points)), best]
 
     @property
     def across_range(self):
         """(lowest, highest) across coordinate of the section, mm."""
         return float(self.uv[:, 0].min()), float(self.uv[:, 0].max())
+
+    def _envelope(self, positions):
+        """(entry, far) depths (mm), each (P,), of the section along the lines across = ``positions`` (P,); NaN
+        where a line misses the bone."""
+        entry, far = np.full(len(positions), np.nan), np.full(len(positions), np.nan)
+        for index, position in enumerate(positions) if not self.exact else ():
+            depths = self._depths_at(position)[0]
+            if depths.size:
+                entry[index], far[index] = depths.min(), depths.max()
+        if self.exact:
+            first, second = self.uv[0::2], self.uv[1::2]
+            offset_first = first[None, :, 0] - positions[:, None]  # (P, S)
+            offset_second = second[None, :, 0] - positions[:, None]
+            crossing = (offset_first * offset_second <= 0.0) & (offset_first != offset_second)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                fraction = offset_first / (offset_first - offset_second)
+            depths = first[None, :, 1] + fraction * (second[None, :, 1] - first[None, :, 1])
+            hit = crossing.any(axis=1)
+            entry[hit] = np.where(crossing, depths, np.inf)[hit].min(axis=1)
+            far[hit] = np.where(crossing, depths, -np.inf)[hit].max(axis=1)
+        return entry, far
 
     def _depths_at(self, across_mm):
         """Depths (mm) and image points where the section crosses the line across = ``across_mm``."""
@@ -248,7 +287,7 @@ def _mesh_crossing(vertices, triangles, heights):
         cut = sides[:, first] != sides[:, second]
         with np.errstate(divide="ignore", invalid="ignore"):  # edges that are not cut are masked out below
             fraction = levels[:, first] / (levels[:, first] - levels[:, second])
-        point = corners[:, first] + fraction[:, None] * (corners[:, second] - corners[:, first])
+            point = corners[:, first] + fraction[:, None] * (corners[:, second] - corners[:, first])
         ends.append(np.where(cut[:, None], point, np.nan))
     ends = np.stack(ends, axis=1)  # (S, 3 edges, 3): exactly two edges of a crossing triangle are cut
     return ends[~np.isnan(ends[:, :, 0])].reshape(-1, 3)

@@ -72,8 +72,7 @@ def render_registration(
     use_offscreen_rendering()
     import vtkmodules.vtkRenderingFreeType  # noqa: F401  (text)
     import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (registers the OpenGL back end)
-    from vtkmodules.vtkIOImage import vtkPNGWriter
-    from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindow, vtkWindowToImageFilter
+    from vtkmodules.vtkRenderingCore import vtkRenderer
 
     renderer = vtkRenderer()
     renderer.SetBackground(0.12, 0.13, 0.16)
@@ -100,11 +99,19 @@ def render_registration(
 
     for prop in _annotations(title, legend, lookup, size, camera.GetParallelScale()):
         renderer.AddViewProp(prop)
+    write_png(path, renderer, size)
+
+
+def write_png(path, renderer, size):
+    """Render ``renderer`` offscreen with the orientation cube in the corner and write it as a PNG."""
+    from vtkmodules.vtkIOImage import vtkPNGWriter
+    from vtkmodules.vtkRenderingCore import vtkRenderWindow, vtkWindowToImageFilter
+
     window = vtkRenderWindow()
     window.SetOffScreenRendering(1)
     window.SetSize(*size)
     window.AddRenderer(renderer)
-    window.AddRenderer(_orientation_renderer(camera))
+    window.AddRenderer(_orientation_renderer(renderer.GetActiveCamera()))
     window.Render()
     grabber = vtkWindowToImageFilter()
     grabber.SetInput(window)
@@ -230,8 +237,9 @@ def _cut_actor(cut, ipc_points):
 
 
 def _annotations(title, legend, lookup, size, parallel_scale):
-    """Title, legend, residual colour bar and a scale bar (2-D props in display coordinates)."""
-    from vtkmodules.vtkRenderingAnnotation import vtkLegendBoxActor, vtkScalarBarActor
+    """Title, legend, residual colour bar (when ``lookup`` is given) and a scale bar (2-D props in display
+    coordinates)."""
+    from vtkmodules.vtkRenderingAnnotation import vtkLegendBoxActor
     from vtkmodules.vtkRenderingCore import vtkTextActor
 
     width, height = size
@@ -257,6 +265,18 @@ def _annotations(title, legend, lookup, size, parallel_scale):
     box.SetBackgroundColor(0.12, 0.13, 0.16)
     box.SetBackgroundOpacity(0.85)
     props.append(box)
+    if lookup is not None:
+        props.append(_residual_bar(lookup, width))
+
+    # An orthographic view shows 2 * parallel_scale mm over the window's height.
+    pixels_per_mm = height / (2.0 * parallel_scale)
+    length_mm = next(mm for mm in (100, 50, 20, 10, 5) if mm * pixels_per_mm <= width * 0.25)
+    props.extend(_scale_bar(length_mm, length_mm * pixels_per_mm, width))
+    return props
+
+
+def _residual_bar(lookup, width):
+    from vtkmodules.vtkRenderingAnnotation import vtkScalarBarActor
 
     bar = vtkScalarBarActor()
     bar.SetLookupTable(lookup)
@@ -273,13 +293,7 @@ def _annotations(title, legend, lookup, size, parallel_scale):
     bar.GetPositionCoordinate().SetValue(width - 130, 120)
     bar.SetWidth(0.07)
     bar.SetHeight(0.55)
-    props.append(bar)
-
-    # An orthographic view shows 2 * parallel_scale mm over the window's height.
-    pixels_per_mm = height / (2.0 * parallel_scale)
-    length_mm = next(mm for mm in (100, 50, 20, 10, 5) if mm * pixels_per_mm <= width * 0.25)
-    props.extend(_scale_bar(length_mm, length_mm * pixels_per_mm, width))
-    return props
+    return bar
 
 
 def _legend_symbol(kind):
