@@ -71,6 +71,9 @@ def test_the_robot_receives_the_whole_path_and_its_tcp_follows_it_at_the_set_spe
     assert len(straight) > 0.9 * len(steps)  # every step but the corners is exactly 0.5 mm
     np.testing.assert_allclose(reported[-1], path[-1], atol=1e-4)
     assert link.passed == len(path) and link.status_text == f"{len(path)} poses"
+    moving = [text for name, text in link.statuses if name == "MOVING"]
+    assert moving == [f"{number} of {len(path)}" for number in range(1, len(path) + 1)]  # each pose, once, in order
+    assert link.statuses[0] == ("ACCEPTED", f"{len(path)} {path_id}") and link.statuses[-1][0] == "DONE"
     link.close()
 
 

@@ -139,8 +139,8 @@ class RobotLink:
     Args:
         host, port: the robot controller's OpenIGTLink server.
         timeout_s: for connecting and for sending.
-        keep_poses: keep every reported ToolToRobotBase in ``poses`` (a test's or a recording's wish; a long cut at
-            125 Hz gives some 10 MB an hour).
+        keep_poses: keep every reported ToolToRobotBase in ``poses`` and every STATUS (name, text) in ``statuses``
+            (a test's or a recording's wish; a long cut at 125 Hz gives some 10 MB an hour).
     """
 
     def __init__(self, host="127.0.0.1", port=ROBOT_PORT, timeout_s=2.0, keep_poses=False):
@@ -163,6 +163,7 @@ class RobotLink:
         self.pose = None  # the last ToolToRobotBase (4, 4)
         self.reports = 0  # ToolToRobotBase messages received
         self.poses = [] if keep_poses else None
+        self.statuses = [] if keep_poses else None
         self.skipped = 0
 
     @property
@@ -244,6 +245,8 @@ class RobotLink:
                 return
             self.state, self.status_text = name, text
             self.states_seen.add(name)
+            if self.statuses is not None:
+                self.statuses.append((name, text))
             if name == "MOVING":
                 self.passed = int(text.split()[0]) if text.split() and text.split()[0].isdigit() else self.passed
             elif name == "DONE":

@@ -175,7 +175,7 @@ class RobotSimulator:
         """Apply one message from the navigation; False when the connection is to be closed."""
         if message.device == PATH_DEVICE and message.type == "STATUS" and message.content.error_name == STOP:
             if self._motion is not None:
-                self._halt("STOP received")
+                self._halt("STOP received", logging.INFO)
                 return self._send(client, "STOPPED", "STOP received")
             return True
         try:
@@ -243,10 +243,10 @@ class RobotSimulator:
             sent = sent and self._send(client, "DONE", f"{len(motion.poses) - 1} poses")
         return sent
 
-    def _halt(self, why):
+    def _halt(self, why, level=logging.WARNING):
         with self._lock:
             self._motion, self.state = None, "STOPPED"
-        logger.warning("robot stopped: %s", why)
+        logger.log(level, "robot stopped: %s", why)
 
     def _send(self, client, name, text, code=1):
         return self._write(client, igtl.encode_status(STATUS_DEVICE, igtl.Status(code, 0, name, text), time.time()))

@@ -19,7 +19,8 @@ The sub-packages are the layers of DESIGN.md, each importing only those before i
 
 =============== ==========================================================================================
 ``core``        the registration itself (numpy/scipy only): paired points, ICP, RAMSICP, sweep, metrics,
-                hold-still detection of probe touches
+                hold-still detection of probe touches; the robot's calibrations, the osteotomy plan, its tool
+                path and the live guidance of the cut
 ``io``          point and surface files, VTK array conversion, the shipped NDI tool geometries
 ``image``       CT volumes to the IPC and the marker-sphere centres
 ``simulation``  the virtual patient, CT phantoms and the shipped bone meshes
@@ -64,6 +65,20 @@ _EXPORTS = {
     "make_transform": "core.transforms",
     "probe_to_reference": "core.transforms",
     "pivot_calibration": "core.pivot",
+    # core: the robot (eqs. 3-4, the four-point TCP), the osteotomy plan, its tool path and live guidance
+    "robot_base_to_tracker": "core.robot",
+    "image_to_robot_base": "core.robot",
+    "tcp_four_point": "core.robot",
+    "TcpCalibration": "core.robot",
+    "CutPlan": "core.osteotomy",
+    "plan_cut": "core.osteotomy",
+    "wedge_plane": "core.osteotomy",
+    "ToolPath": "core.tool_path",
+    "plan_tool_path": "core.tool_path",
+    "plan_osteotomy": "core.tool_path",
+    "plan_document": "core.tool_path",
+    "CutGuidance": "core.guidance",
+    "cut_guidance": "core.guidance",
     # core: probe-point collection by holding the tip still
     "HoldStillDetector": "core.hold_still",
     "Touch": "core.hold_still",
