@@ -151,6 +151,19 @@ def test_a_closing_wedge_turns_the_second_cut_about_the_hinge(cylinder):
     assert set(path.cut_index) == {0, 1} and path.passes == 8
     on_second = path.positions[path.cut_index == 1]
     assert np.abs((on_second - second.plane.origin) @ second.plane.normal).max() < 1e-9
+    for number, plan in enumerate(plans):  # both cuts stop at the hinge line at the latest: it stays uncut
+        assert plan.hinge_depth_mm == pytest.approx(far - 3.0)
+        depths = plan.plane.to_plane(path.positions[path.cut_index == number])[:, 1]
+        assert depths.max() <= far - 3.0 + 1e-9
+    # a 2 mm burr has a pass centred on the hinge's middle, 3 mm before the far cortex under it: it reaches the hinge
+    plans, path = plan_osteotomy(
+        cylinder[0], CENTRE, (0, 0, 1), (0, 1, 0), wedge_deg=10.0, triangles=cylinder[1], tool="burr", width_mm=2.0,
+        far_margin_mm=3.0,
+    )  # fmt: skip
+    hinge = plans[0].section.span_depth_range(-1.0, 1.0)[1] - 3.0
+    for number, plan in enumerate(plans):
+        depths = plan.plane.to_plane(path.positions[path.cut_index == number])[:, 1]
+        assert depths.max() == pytest.approx(hinge, abs=1e-9)
     with pytest.raises(ValueError, match="between 0 and 90"):
         wedge_plane(first, 95.0, 10.0)
 
@@ -205,6 +218,8 @@ def test_guidance_follows_the_cut_of_a_wedge_the_tool_is_nearest(cylinder):
     guidance = cut_guidance(plans, tool_at(plans[1], 0.0, -8.0))
     assert guidance.cut == 1 and guidance.cuts == 2 and abs(guidance.distance_mm) < 1e-9
     assert guidance.text.startswith("cut 2 of 2: tip +0.0 mm")
+    assert guidance.depth_to_hinge_mm == pytest.approx(plans[1].hinge_depth_mm + 8.0)
+    assert f"{guidance.depth_to_hinge_mm:.1f} mm to the hinge" in guidance.text
 
 
 def test_the_demo_tibia_targets_are_the_planned_cut_endpoints(tibia_patient):

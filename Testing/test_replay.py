@@ -167,6 +167,7 @@ def _free_port():
         (["--simulate", "--port", "99999"], "--port 99999: give a port from 1 to 65535"),
         (["--simulate", "--reference-rom", "missing.rom"], "--reference-rom missing.rom: no such file"),
         (["--simulate", "--probe-rom", "{garbage}"], "not an NDI tool definition"),
+        (["--simulate", "--tool-rom", "{folder}"], "is a folder; give the tool's .rom file"),
         (["--replay", "missing.igs.mha"], "missing.igs.mha: no such file"),
         (["--replay", "{truncated}"], "the file was cut short"),
         (["--replay", str(CALIBRATION), "--speed", "0"], "replay speed 0.0: give a number above 0"),
@@ -179,7 +180,7 @@ def test_bad_arguments_and_files_give_one_line_and_exit_2_before_anything_starts
     garbage.write_bytes(b"this is not a tool definition" * 10)
     truncated = tmp_path / "truncated.igs.mha"
     truncated.write_text(CALIBRATION.read_text()[:20000])
-    arguments = [a.format(garbage=garbage, truncated=truncated) for a in arguments]
+    arguments = [a.format(garbage=garbage, truncated=truncated, folder=tmp_path) for a in arguments]
     start = time.monotonic()
     port = [] if "--port" in arguments else ["--port", str(_free_port())]
     completed = _server_command(*arguments, *port)

@@ -340,6 +340,14 @@ def _parser():
     )
     parser.add_argument("--reference-rom", type=Path, help="reference body .rom file (default NDI 8700339)")
     parser.add_argument("--probe-rom", type=Path, help="probe .rom file (default NDI 8700340)")
+    parser.add_argument(
+        "--tool-rom",
+        type=Path,
+        help="also track the cutting tool's markers (.rom file), sent as --tool-name; for the live guidance of a cut",
+    )
+    parser.add_argument(
+        "--tool-name", default="ToolToTracker", help="device name of the cutting tool's pose (default ToolToTracker)"
+    )
     parser.add_argument("--loop", action="store_true", help="with --replay: start again after the last frame")
     parser.add_argument(
         "--speed", type=float, default=1.0, help="with --replay: playback speed (default 1, the recorded speed)"
@@ -368,7 +376,11 @@ def _check_arguments(arguments):
             arguments.ndi_address = parse_ndi_address(arguments.ndi)
         except ValueError as error:
             raise ValueError(f"--ndi {error}") from None
-    for option, path in (("--reference-rom", arguments.reference_rom), ("--probe-rom", arguments.probe_rom)):
+    for option, path in (
+        ("--reference-rom", arguments.reference_rom),
+        ("--probe-rom", arguments.probe_rom),
+        ("--tool-rom", arguments.tool_rom),
+    ):
         if path is not None:
             _check_rom(option, path)
 
@@ -428,6 +440,8 @@ def main(argv=None):
             "Reference": arguments.reference_rom or tool_rom_path("8700339"),
             "Probe": arguments.probe_rom or tool_rom_path("8700340"),
         }
+        if arguments.tool_rom is not None:
+            roms["Tool"] = arguments.tool_rom
         host, port = arguments.ndi_address if arguments.ndi else (None, NDI_PORT)
         if arguments.simulate:
             from .live_scenario import demo_simulator
@@ -439,7 +453,7 @@ def main(argv=None):
         def connect():
             return open_tracker(host, port, arguments.serial, roms)
 
-        names = {"Probe": arguments.probe_name, "Reference": arguments.reference_name}
+        names = {"Probe": arguments.probe_name, "Reference": arguments.reference_name, "Tool": arguments.tool_name}
         source = TrackerSource(connect, names, arguments.rate)
     server = TrackerServer(source=source, listener=listener, header_version=arguments.header_version)
     logger.info("serving OpenIGTLink on %s:%d", *server.address[:2])

@@ -8,7 +8,8 @@ normal, z the direction it advances, x across its width) and the plan, the surge
 * ``angle_deg``: for a saw, the angle between the blade's plane and the planned plane; for a burr, the angle
   between its axis and the plane (a burr may spin in any way about its axis);
 * ``depth_to_far_cortex_mm``: how far the tool may still advance along the cut before its edge reaches the far
-  cortex, over its whole width (negative: past it); None when the tool is not over the bone's section;
+  cortex, over its whole width (negative: past it); None when the tool is not over the bone's section; for a
+  wedge's cut also ``depth_to_hinge_mm``, to the hinge line where the cut stops;
 * ``on_plan``: both distances within ``distance_tolerance_mm`` and the angle within ``angle_tolerance_deg``
   (green; 1 mm and 2 degrees by default).
 
@@ -39,6 +40,7 @@ class CutGuidance:
     depth_to_far_cortex_mm: object
     in_extent: bool
     on_plan: bool
+    depth_to_hinge_mm: object = None
 
     @property
     def text(self):
@@ -49,6 +51,8 @@ class CutGuidance:
             if self.depth_to_far_cortex_mm is None
             else f"{self.depth_to_far_cortex_mm:.1f} mm to the far cortex"
         )
+        if self.depth_to_hinge_mm is not None:
+            far += f", {self.depth_to_hinge_mm:.1f} mm to the hinge"
         extent = "" if self.in_extent else ", outside the planned extent"
         verdict = "on plan" if self.on_plan else "OFF PLAN"
         return (
@@ -102,4 +106,5 @@ def cut_guidance(
         depth_to_far_cortex_mm=far,
         in_extent=bool(in_extent),
         on_plan=bool(max(abs(distance), edge) <= distance_tolerance_mm and angle <= angle_tolerance_deg),
+        depth_to_hinge_mm=None if plan.hinge_depth_mm is None else float(plan.hinge_depth_mm - depth),
     )

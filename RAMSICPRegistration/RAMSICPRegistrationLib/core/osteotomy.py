@@ -19,7 +19,8 @@ The four **endpoints** (4, 3) are where the cut meets the bone's surface:
   and leave the bone, in the order (-side, entry), (-side, far), (+side, entry), (+side, far).
 
 A closing wedge (high tibial osteotomy) is two such cuts meeting at a hinge line: ``wedge_plane`` turns a cut about
-a line across it at a chosen depth.
+a line across it at a chosen depth. Both cuts then stop at the hinge (``hinge_depth_mm``), which stays uncut; their
+endpoints remain where their planes meet the bone, so the far ones lie beyond the hinge.
 """
 
 from dataclasses import dataclass
@@ -163,22 +164,25 @@ class Section:
 
 @dataclass(frozen=True)
 class CutPlan:
-    """One planned cut: its plane, its width across the bone (None: the whole bone), the bone's section in it and
-    the four endpoints (4, 3) in image coordinates (mm) with their labels."""
+    """One planned cut: its plane, its width across the bone (None: the whole bone), the bone's section in it, the
+    four endpoints (4, 3) in image coordinates (mm) with their labels, and for a wedge's cut the depth of its hinge
+    (mm along ``depth`` from the origin; None: the cut may reach the far cortex)."""
 
     plane: CutPlane
     extent_mm: object
     section: Section
     endpoints: np.ndarray
     endpoint_labels: tuple
+    hinge_depth_mm: object = None
 
     def to_dict(self):
-        """JSON-ready: ``plane``, ``extent_mm``, ``endpoints`` (4 x 3) and ``endpoint_labels``."""
+        """JSON-ready: ``plane``, ``extent_mm``, ``endpoints`` (4 x 3), ``endpoint_labels``, ``hinge_depth_mm``."""
         return {
             "plane": self.plane.to_dict(),
             "extent_mm": self.extent_mm,
             "endpoints": self.endpoints.tolist(),
             "endpoint_labels": list(self.endpoint_labels),
+            "hinge_depth_mm": self.hinge_depth_mm,
         }
 
 

@@ -9,7 +9,8 @@ stays in the planned plane, and every TCP lies on it.
 
 The cut is swept in **passes**, one per position across: the blade (``width_mm`` wide) enters ``clearance_mm``
 before the nearest bone, advances to ``far_margin_mm`` before the far cortex under the whole width of its edge,
-comes back out along the same line, and moves across, outside the bone, to the next pass. The passes overlap by
+comes back out along the same line, and moves across, outside the bone, to the next pass. A wedge's cut stops at
+its hinge when that comes first. The passes overlap by
 ``overlap`` of the width and keep the blade within the cut's extent (or the bone's width for a whole-bone cut).
 Along a pass the poses are at most ``spacing_mm`` apart; a robot moves linearly between them.
 """
@@ -147,7 +148,7 @@ def plan_tool_path(
     entry = min(span[0] for _, span in kept) - clearance_mm
     coordinates, pass_index = [], []
     for number, (centre, (_, far)) in enumerate(kept):
-        stop = far - far_margin_mm
+        stop = far - far_margin_mm if plan.hinge_depth_mm is None else min(far - far_margin_mm, plan.hinge_depth_mm)
         steps = max(1, int(np.ceil((stop - entry) / spacing_mm))) if stop > entry else 0
         depths = np.linspace(entry, stop, steps + 1) if steps else np.array([entry])
         depths = np.concatenate((depths, depths[-2::-1]))  # in, then back out along the same line
@@ -208,16 +209,18 @@ def plan_osteotomy(
     far_margin_mm=DEFAULT_FAR_MARGIN_MM,
 ):
     """A whole osteotomy: the cut (``osteotomy.plan_cut``), for a closing wedge (``wedge_deg`` > 0) the second cut
-    turned about a hinge across the first, ``far_margin_mm`` before the far cortex under the plane's centre, and
-    the tool path sweeping both in turn. Returns (plans, path): a tuple of 1 or 2 CutPlan and a ToolPath."""
+    turned about a hinge across the first, ``far_margin_mm`` before the far cortex under the plane's centre (both
+    cuts stop there), and the tool path sweeping the cuts in turn. Returns (plans, path): a tuple of 1 or 2 CutPlan
+    and a ToolPath."""
     plans = [plan_cut(points, origin, normal, depth=depth, extent_mm=extent_mm, triangles=triangles)]
-    path = plan_tool_path(plans[0], tool, width_mm, far_margin_mm)
     if wedge_deg:
-        half = path.width_mm / 2.0
+        half = (DEFAULT_TOOL_WIDTH_MM[tool] if width_mm is None else width_mm) / 2.0
         far = plans[0].section.span_depth_range(-half, half)
         if far is None:
             raise ValueError("the wedge's hinge lies under the plane's centre, which is off the bone; move the plane")
-        second = wedge_plane(plans[0], wedge_deg, far[1] - far_margin_mm)
+        hinge = far[1] - far_margin_mm
+        second = wedge_plane(plans[0], wedge_deg, hinge)
         plans.append(plan_cut(points, second[0], second[1], depth=second[2], extent_mm=extent_mm, triangles=triangles))
-        path = path.then(plan_tool_path(plans[1], tool, width_mm, far_margin_mm))
-    return tuple(plans), path
+        plans = [replace(plan, hinge_depth_mm=float(hinge)) for plan in plans]
+    paths = [plan_tool_path(plan, tool, width_mm, far_margin_mm) for plan in plans]
+    return tuple(plans), paths[0] if len(paths) == 1 else paths[0].then(paths[1])
