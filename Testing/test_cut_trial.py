@@ -46,6 +46,6 @@ def test_the_measured_result_with_every_error_and_the_command_line(tmp_path, cap
     for name in ("cut_result.png", "guidance.png"):
         assert (tmp_path / name).stat().st_size > 20_000
     printed = capsys.readouterr().out
-    assert "E1 +across end" in printed and f"RMS {document['rms_mm']:.2f} mm" in printed
+    assert "E1 anterior" in printed and f"RMS {document['rms_mm']:.2f} mm" in printed
     assert main(["cut-demo", "--out", str(tmp_path / "cut_result.json")]) == 2
     assert "is a file; give a folder" in capsys.readouterr().err

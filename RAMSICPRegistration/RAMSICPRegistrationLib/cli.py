@@ -949,8 +949,8 @@ def _run_plan(arguments):
             f"{name:<17}origin ({_numbers(plane.origin)}) normal ({_numbers(plane.normal)}) depth "
             f"({_numbers(plane.depth)}); across {width}"
         )
-        for label, point in zip(plan.endpoint_labels, plan.endpoints):
-            print(f"  {label:<15}({_numbers(point)})")
+        for label, word, point in zip(plan.endpoint_labels, plan.endpoint_directions, plan.endpoints):
+            print(f"  {label:<15}({_numbers(point)})  {word}")
     print(
         f"tool path        {path.tool} {path.width_mm:g} mm: {len(path.poses)} poses in {path.passes} passes, "
         f"{path.length_mm:.0f} mm, stopping {path.far_margin_mm:g} mm before the far cortex"
@@ -1014,13 +1014,16 @@ def _run_cut_demo(arguments):
         f"{guidance['tip_distance_mean_mm']:+.2f} mm on average (at most {guidance['tip_distance_max_mm']:.2f}), angle "
         f"at most {guidance['angle_max_deg']:.2f} deg, on plan {100 * guidance['on_plan_fraction']:.0f} % of the time"
     )
-    print("  endpoint         planned (x, y, z) mm             executed (x, y, z) mm       distance  along normal  "
-          "registration error (predicted)")  # fmt: skip
-    for number, label in enumerate(result.labels):
+    print(
+        f"  {'endpoint':<16} {'planned (x y z) mm':<24} {'executed (x y z) mm':<24} {'distance':>8} "
+        f"{'along normal':>13}  registration error (predicted)"
+    )
+    for number, word in enumerate(result.directions):
         print(
-            f"  E{number + 1} {label:<13} ({_numbers(result.planned[number])})  ({_numbers(result.executed[number])})  "
-            f"{result.distance_mm[number]:6.2f}  {result.normal_mm[number]:+10.2f}    "
-            f"{result.registration_error_mm[number]:.2f} ({result.predicted_error_mm[number]:.2f})"
+            f"  E{number + 1} {word:<13} {'(' + _numbers(result.planned[number]) + ')':<24} "
+            f"{'(' + _numbers(result.executed[number]) + ')':<24} {result.distance_mm[number]:8.2f} "
+            f"{result.normal_mm[number]:+13.2f}  {result.registration_error_mm[number]:.2f} "
+            f"({result.predicted_error_mm[number]:.2f})"
         )
     print(f"  RMS {result.rms_mm:.2f} mm; the executed plane is tilted {result.tilt_deg:.2f} deg from the planned one")
     print(f"  written to {arguments.out}: cut_result.json, cut_result.png, guidance.png; {result.seconds:.1f} s")

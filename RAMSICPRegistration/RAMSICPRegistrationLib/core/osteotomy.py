@@ -175,6 +175,17 @@ class CutPlan:
     endpoint_labels: tuple
     hinge_depth_mm: object = None
 
+    @property
+    def endpoint_directions(self):
+        """The patient's directions (RAS words) each endpoint lies towards, e.g. 'anterior' or 'posterior, medial'
+        ('left'/'right' for R-L, since medial and lateral depend on the side)."""
+        across, depth = self.plane.across, self.plane.depth
+        if self.endpoint_labels == WHOLE_BONE_LABELS:
+            return tuple(direction_word(vector) for vector in (across, -across, depth, -depth))
+        return tuple(
+            f"{direction_word(side * across)}, {direction_word(end * depth)}" for side in (-1, 1) for end in (-1, 1)
+        )
+
     def to_dict(self):
         """JSON-ready: ``plane``, ``extent_mm``, ``endpoints`` (4 x 3), ``endpoint_labels``, ``hinge_depth_mm``."""
         return {
@@ -182,6 +193,7 @@ class CutPlan:
             "extent_mm": self.extent_mm,
             "endpoints": self.endpoints.tolist(),
             "endpoint_labels": list(self.endpoint_labels),
+            "endpoint_directions": list(self.endpoint_directions),
             "hinge_depth_mm": self.hinge_depth_mm,
         }
 
@@ -327,6 +339,12 @@ def _extent_corners(section, extent_mm):
             )
         corners += [points[np.argmin(depths)], points[np.argmax(depths)]]
     return np.array(corners)
+
+
+def direction_word(vector):
+    """The patient's direction (RAS) a vector (3,) points most along: 'right', 'anterior', 'inferior', ..."""
+    axis = int(np.argmax(np.abs(vector)))
+    return (("left", "right"), ("posterior", "anterior"), ("inferior", "superior"))[axis][int(vector[axis] > 0)]
 
 
 def _vector3(values, name):

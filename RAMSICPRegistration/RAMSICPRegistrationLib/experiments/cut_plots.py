@@ -60,20 +60,16 @@ def _section_panel(axes, result):
                  label=f"executed endpoints (their in-plane offset x{ARROW_SCALE:g})")  # fmt: skip
     for start, end in zip(planned, arrows):
         axes.annotate("", end, start, arrowprops={"arrowstyle": "->", "color": EXECUTED_COLOUR, "lw": 1.0})
-    for number, (point, label) in enumerate(zip(planned, result.labels)):
-        axes.annotate(f"E{number + 1} {label}", point, textcoords="offset points", xytext=(6, 6), fontsize=8)
+    for number, (point, word) in enumerate(zip(planned, result.directions)):
+        axes.annotate(f"E{number + 1} {word}", point, textcoords="offset points", xytext=(6, 6), fontsize=8)
     axes.set_aspect("equal")
-    axes.set_xlabel(f"across the cut (mm), + {direction_word(plan.plane.across)}")
-    axes.set_ylabel(f"depth (mm): the blade advances upwards, to the patient's {direction_word(plan.plane.depth)}")
+    # the directions of the +across and the far ends (a whole-bone cut's), in the bone's own words
+    across, far = result.directions[0], result.directions[2]
+    axes.set_xlabel(f"across the cut (mm), + {across}")
+    axes.set_ylabel(f"depth (mm): the blade advances upwards, {far}")
     axes.set_title("The cut in its planned plane", fontsize=9)
     axes.grid(alpha=0.3)
     axes.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
-
-
-def direction_word(vector):
-    """The patient's direction (RAS) a vector (3,) points most along: 'right', 'anterior', 'inferior', ..."""
-    axis = int(np.argmax(np.abs(vector)))
-    return (("left", "right"), ("posterior", "anterior"), ("inferior", "superior"))[axis][int(vector[axis] > 0)]
 
 
 def _error_panel(axes, result):
@@ -94,7 +90,8 @@ def _error_panel(axes, result):
     for number, value in zip(numbers, result.distance_mm):
         axes.annotate(f"{value:.2f}", (number - 0.2, value), textcoords="offset points", xytext=(0, 3),
                       ha="center", fontsize=8)  # fmt: skip
-    axes.set_xticks(numbers, [f"E{n + 1}\n{label}" for n, label in enumerate(result.labels)], fontsize=8)
+    words = result.directions
+    axes.set_xticks(numbers, [f"E{n + 1} {label}\n{words[n]}" for n, label in enumerate(result.labels)], fontsize=8)
     axes.set_ylabel("mm")
     axes.set_ylim(bottom=0.0, top=max(0.5, 1.35 * max(result.registration_error_mm.max(), result.distance_mm.max())))
     axes.set_title("Endpoint errors", fontsize=9)

@@ -100,6 +100,16 @@ class CutResult:
     blade_guidance: object  # its CutGuidance
 
     @property
+    def directions(self):
+        """Where each endpoint lies on the bone, in words: 'anterior', 'medial', ..."""
+        lateral = "right" if BONES[self.bone]["lateral"][0] > 0 else "left"
+        medial = "left" if lateral == "right" else "right"
+        words = {lateral: "lateral", medial: "medial"}
+        return tuple(
+            ", ".join(words.get(word, word) for word in text.split(", ")) for text in self.plan.endpoint_directions
+        )
+
+    @property
     def rms_mm(self):
         """The executed endpoints' RMS distance from the planned ones (eq. 11's form)."""
         return float(np.sqrt(np.mean(self.distance_mm**2)))
@@ -108,6 +118,7 @@ class CutResult:
         return {
             "bone": self.bone,
             "labels": list(self.labels),
+            "directions": list(self.directions),
             "planned_endpoints": self.planned.tolist(),
             "executed_endpoints": self.executed.tolist(),
             "distance_mm": self.distance_mm.tolist(),
