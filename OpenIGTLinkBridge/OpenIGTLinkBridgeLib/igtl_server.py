@@ -121,7 +121,28 @@ class TrackerSource:
             self.tracker = None
 
 
-class TrackerServer:
+class BackgroundServing:
+    """``start()`` runs ``serve()`` in a daemon thread called ``thread_name``; ``stop()`` sets ``_stop``, waits for
+    the thread and then calls ``_release()``. The class creates ``_stop`` (an Event) and ``_thread`` (None)."""
+
+    thread_name = "server"
+
+    def start(self):
+        self._thread = threading.Thread(target=self.serve, name=self.thread_name, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self):
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        self._release()
+
+    def _release(self):
+        """Close what the server holds, once its thread has ended."""
+
+
+class TrackerServer(BackgroundServing):
     """Serve a tracker, or a recording, over OpenIGTLink.
 
     Args:
@@ -165,19 +186,13 @@ class TrackerServer:
         self._stop = threading.Event()
         self._thread = None
 
+    thread_name = "TrackerServer"
+
     @property
     def tracker(self):
         return getattr(self.source, "tracker", None)
 
-    def start(self):
-        self._thread = threading.Thread(target=self.serve, name="TrackerServer", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self):
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+    def _release(self):
         for client in list(self.clients):
             client.close()
         self.listener.close()

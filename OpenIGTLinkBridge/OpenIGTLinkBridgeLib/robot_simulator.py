@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import igtl_messages as igtl
+from .igtl_server import BackgroundServing
 from .robot_link import PATH_DEVICE, POSE_DEVICE, ROBOT_PORT, STATUS_DEVICE, STOP, PathAssembler, PathError
 
 logger = logging.getLogger(__name__)
@@ -51,7 +52,7 @@ class _Motion:
     passed: int = 0
 
 
-class RobotSimulator:
+class RobotSimulator(BackgroundServing):
     """The robot controller's OpenIGTLink server, one client at a time; ``start()`` runs it in a thread.
 
     Args:
@@ -116,15 +117,9 @@ class RobotSimulator:
         return self.flange_pose() @ self.told_tcp
 
     # -- server --------------------------------------------------------------------------------------------
-    def start(self):
-        self._thread = threading.Thread(target=self.serve, name="RobotSimulator", daemon=True)
-        self._thread.start()
-        return self
+    thread_name = "RobotSimulator"
 
-    def stop(self):
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
+    def _release(self):
         self.server.close()
 
     def serve(self):

@@ -1,5 +1,5 @@
 """numpy arrays to VTK data objects and back, in one place: image data from (I, J, K) arrays, poly data from
-points and triangles, and a triangle mesh's points and triangles from poly data."""
+points and triangles or a polyline, and a triangle mesh's points and triangles from poly data."""
 
 import numpy as np
 
@@ -40,6 +40,20 @@ def poly_data(points, triangles=None):
     else:
         mesh.SetPolys(cells)
     return mesh
+
+
+def polyline_data(points):
+    """``vtkPolyData`` of one polyline through (N, 3) points, in their order (a tool path)."""
+    from vtkmodules.vtkCommonDataModel import vtkCellArray
+
+    data = poly_data(points)
+    data.SetVerts(vtkCellArray())
+    line = vtkCellArray()
+    line.InsertNextCell(len(points))
+    for index in range(len(points)):
+        line.InsertCellPoint(index)
+    data.SetLines(line)
+    return data
 
 
 def triangle_arrays(mesh):

@@ -5,6 +5,7 @@ numbers in a green (on plan) or red (off plan) panel. Every coordinate is image 
 import numpy as np
 
 from ..core.guidance import DEFAULT_ANGLE_TOLERANCE_DEG, DEFAULT_DISTANCE_TOLERANCE_MM
+from ..io.vtk_arrays import polyline_data
 from .scene_render import (
     TARGET_COLOUR,
     _annotations,
@@ -12,6 +13,8 @@ from .scene_render import (
     _glyph_actor,
     _surface_actor,
     check_writable_png,
+    data_actor,
+    patch_actor,
     use_offscreen_rendering,
     write_png,
 )
@@ -64,7 +67,9 @@ def render_guidance(
         renderer.AddActor(_plane_actor(plan))
     legend.append(("planned cut", PLAN_COLOUR, "square"))
     if path_positions is not None:
-        renderer.AddActor(_line_actor(path_positions, PATH_COLOUR))
+        line = data_actor(polyline_data(path_positions), PATH_COLOUR)
+        line.GetProperty().SetLineWidth(1.5)
+        renderer.AddActor(line)
         legend.append(("tool path (TCP)", PATH_COLOUR, "square"))
     endpoints = np.vstack([plan.endpoints for plan in plans])
     renderer.AddActor(_glyph_actor(endpoints, 1.5, colour=TARGET_COLOUR, cube=True))
@@ -85,64 +90,26 @@ def render_guidance(
 
 def _plane_actor(plan, margin_mm=6.0):
     """A translucent patch of the planned plane over the bone's section (and a margin)."""
-    from vtkmodules.vtkFiltersSources import vtkPlaneSource
-    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
-
     low, high = plan.section.uv.min(axis=0) - margin_mm, plan.section.uv.max(axis=0) + margin_mm
-    source = vtkPlaneSource()
-    source.SetOrigin(*plan.plane.from_plane([low])[0])
-    source.SetPoint1(*plan.plane.from_plane([(high[0], low[1])])[0])
-    source.SetPoint2(*plan.plane.from_plane([(low[0], high[1])])[0])
-    mapper = vtkPolyDataMapper()
-    mapper.SetInputConnection(source.GetOutputPort())
-    actor = vtkActor()
-    actor.SetMapper(mapper)
-    actor.GetProperty().SetColor(*PLAN_COLOUR)
-    actor.GetProperty().SetOpacity(0.35)
-    return actor
-
-
-def _line_actor(points, colour):
-    from vtkmodules.vtkCommonDataModel import vtkCellArray
-    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
-
-    from ..io.vtk_arrays import poly_data
-
-    data = poly_data(points)
-    data.SetVerts(vtkCellArray())
-    line = vtkCellArray()
-    line.InsertNextCell(len(points))
-    for index in range(len(points)):
-        line.InsertCellPoint(index)
-    data.SetLines(line)
-    mapper = vtkPolyDataMapper()
-    mapper.SetInputData(data)
-    actor = vtkActor()
-    actor.SetMapper(mapper)
-    actor.GetProperty().SetColor(*colour)
-    actor.GetProperty().SetLineWidth(1.5)
-    return actor
+    corners = plan.plane.from_plane([low, (high[0], low[1]), (low[0], high[1])])
+    return patch_actor(*corners, PLAN_COLOUR, 0.35)
 
 
 def _blade_actor(pose, width_mm):
     """The blade as a thin box: its cutting edge centred on the TCP, reaching back along -z."""
     from vtkmodules.vtkCommonTransforms import vtkTransform
     from vtkmodules.vtkFiltersSources import vtkCubeSource
-    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
 
     box = vtkCubeSource()
     box.SetXLength(width_mm)
     box.SetYLength(BLADE_THICKNESS_MM)
     box.SetZLength(BLADE_LENGTH_MM)
     box.SetCenter(0.0, 0.0, -BLADE_LENGTH_MM / 2.0)
+    box.Update()
     transform = vtkTransform()
     transform.SetMatrix(np.asarray(pose, dtype=np.float64).ravel().tolist())
-    mapper = vtkPolyDataMapper()
-    mapper.SetInputConnection(box.GetOutputPort())
-    actor = vtkActor()
-    actor.SetMapper(mapper)
+    actor = data_actor(box.GetOutput(), BLADE_COLOUR)
     actor.SetUserTransform(transform)
-    actor.GetProperty().SetColor(*BLADE_COLOUR)
     actor.GetProperty().SetSpecular(0.4)
     return actor
 

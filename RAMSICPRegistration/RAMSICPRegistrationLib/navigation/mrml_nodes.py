@@ -12,7 +12,7 @@ Nothing here reaches for ``slicer.mrmlScene``: every function takes the scene it
 import numpy as np
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from ..io.vtk_arrays import image_data, poly_data
+from ..io.vtk_arrays import image_data, poly_data, polyline_data
 
 
 def volume_node(scene, volume, name, labelmap=False):
@@ -69,17 +69,8 @@ def model_node(scene, points, triangles=None, name="IPC"):
 
 def polyline_model(scene, points, name):
     """Add a ``vtkMRMLModelNode`` of one polyline through (N, 3) RAS points (a tool path), drawn as a line."""
-    from vtkmodules.vtkCommonDataModel import vtkCellArray
-
-    data = poly_data(points)
-    data.SetVerts(vtkCellArray())
-    line = vtkCellArray()
-    line.InsertNextCell(len(points))
-    for index in range(len(points)):
-        line.InsertCellPoint(index)
-    data.SetLines(line)
     node = scene.AddNewNodeByClass("vtkMRMLModelNode", name)
-    node.SetAndObservePolyData(data)
+    node.SetAndObservePolyData(polyline_data(points))
     node.CreateDefaultDisplayNodes()
     node.GetDisplayNode().SetLineWidth(2.0)
     return node

@@ -211,9 +211,6 @@ def _glyph_actor(centres, radius, colour=None, scalars=None, lookup=None, cube=F
 
 def _cut_actor(cut, ipc_points):
     """A translucent square of the cut plane, 1.4 times the bone's width at the cut."""
-    from vtkmodules.vtkFiltersSources import vtkPlaneSource
-    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
-
     point, normal = (np.asarray(v, dtype=np.float64) for v in cut)
     normal = normal / np.linalg.norm(normal)
     near = np.abs((np.asarray(ipc_points) - point) @ normal) < 1.0
@@ -223,16 +220,33 @@ def _cut_actor(cut, ipc_points):
     u /= np.linalg.norm(u)
     v = np.cross(normal, u)
     centre = section.mean(axis=0) - ((section.mean(axis=0) - point) @ normal) * normal
+    corner = centre - half * u - half * v
+    return patch_actor(corner, corner + 2 * half * u, corner + 2 * half * v, CUT_COLOUR, 0.45)
+
+
+def patch_actor(corner, first, second, colour, opacity):
+    """A translucent parallelogram with corners ``corner``, ``first`` and ``second`` (each (3,), mm)."""
+    from vtkmodules.vtkFiltersSources import vtkPlaneSource
+
     plane = vtkPlaneSource()
-    plane.SetOrigin(*(centre - half * u - half * v))
-    plane.SetPoint1(*(centre + half * u - half * v))
-    plane.SetPoint2(*(centre - half * u + half * v))
+    plane.SetOrigin(*corner)
+    plane.SetPoint1(*first)
+    plane.SetPoint2(*second)
+    plane.Update()
+    actor = data_actor(plane.GetOutput(), colour)
+    actor.GetProperty().SetOpacity(opacity)
+    return actor
+
+
+def data_actor(data, colour):
+    """An actor drawing ``vtkPolyData`` in one colour."""
+    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
+
     mapper = vtkPolyDataMapper()
-    mapper.SetInputConnection(plane.GetOutputPort())
+    mapper.SetInputData(data)
     actor = vtkActor()
     actor.SetMapper(mapper)
-    actor.GetProperty().SetColor(*CUT_COLOUR)
-    actor.GetProperty().SetOpacity(0.45)
+    actor.GetProperty().SetColor(*colour)
     return actor
 
 
