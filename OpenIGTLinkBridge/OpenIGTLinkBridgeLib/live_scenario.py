@@ -258,6 +258,8 @@ def serve_hand_held_probe(probe, port=0, rate_hz=60.0):
     """The started simulator of a HandHeldProbe and its OpenIGTLink server on 127.0.0.1; stop both."""
     simulator = VegaSimulator(Scenario(probe.poses, rate_hz=rate_hz)).start()
     return simulator, serve_simulator(simulator, port, rate_hz)
+
+
 def robot_tool_poses(robot, robot_base_to_tracker, marker_to_flange):
     """ToolToTracker now (a function of time for a Scenario; the time is the robot's own): the markers fixed to
     the robot's tool, ``MarkerToFlange`` (4, 4), wherever the robot simulator has really moved its flange."""
