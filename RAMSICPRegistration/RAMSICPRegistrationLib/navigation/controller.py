@@ -162,11 +162,11 @@ class NavigationController:
         scene: the vtkMRMLScene (``slicer.mrmlScene`` inside Slicer, a ``slicer-core`` scene elsewhere).
         autosave_directory: every collected point list is written there at once, atomically.
         clock: monotonic clock in seconds (for tracking ages).
-        robot_link_factory: callable(host, port) -> a connected link to the robot controller with ``send_path``,
-            ``poll``, ``stop``, ``close`` (``OpenIGTLinkBridgeLib.robot_link.RobotLink``, the default).
         stale_after_s: a watched transform without a new pose for longer than this is stale.
         pose_time: optional callable(node) -> the time (s) the node's new pose was measured, for hold-still
             collection; by default the clock when the pose arrives. Our receiver knows each frame's time stamp.
+        robot_link_factory: callable(host, port) -> a connected link to the robot controller with ``send_path``,
+            ``wait_for``, ``poll``, ``stop``, ``close`` (``OpenIGTLinkBridgeLib.robot_link.RobotLink``, the default).
     """
 
     def __init__(
@@ -218,8 +218,9 @@ class NavigationController:
     def add_listener(self, callback):
         """Call ``callback(event, data)`` on every event: 'image', 'pivot', 'collected' (data: (points node, index,
         the hold-still Touch or None)), 'auto-collect', 'hold-still', 'registered', 'message' (data: (text,
-        is_error)), 'reset', and 'pose' (data: the tool's label, e.g. 'ProbeToReference') for each new pose of a
-        watched tool, at the tracker's rate: keep that one cheap. Returns the callback, for ``remove_listener``."""
+        is_error)), 'reset', 'planned' (data: the cutting.PlannedCut), 'path-sent' (data: the ToolPath sent, robot
+        base), and 'pose' (data: the tool's label, e.g. 'ProbeToReference') for each new pose of a watched tool, at
+        the tracker's rate: keep that one cheap. Returns the callback, for ``remove_listener``."""
         self._listeners.append(callback)
         return callback
 
@@ -792,7 +793,7 @@ class NavigationController:
     def _predicted_endpoint_errors(self):
         """The registration's predicted error (mm) at each endpoint (cr-fused), else None."""
         result = self.last_result
-        if result is None or getattr(result, "pose_covariance", None) is None:
+        if result is None or result.pose_covariance is None:
             return None
         return np.asarray(result.predicted_error_mm(self._cut.endpoints))
 
