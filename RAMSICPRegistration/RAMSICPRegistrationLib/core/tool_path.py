@@ -9,10 +9,10 @@ stays in the planned plane, and every TCP lies on it.
 
 The cut is swept in **passes**, one per position across: the blade (``width_mm`` wide) enters ``clearance_mm``
 before the nearest bone, advances to ``far_margin_mm`` before the far cortex under the whole width of its edge,
-comes back out along the same line, and moves across, outside the bone, to the next pass. A wedge's cut stops at
-its hinge when that comes first. The passes overlap by
-``overlap`` of the width and keep the blade within the cut's extent (or the bone's width for a whole-bone cut).
-Along a pass the poses are at most ``spacing_mm`` apart; a robot moves linearly between them.
+comes back out along the same line, and moves across, outside the bone, to the next pass; a wedge's cut stops at
+its hinge when that comes first. The passes overlap by ``overlap`` of the width and keep the blade within the cut's
+extent (or the bone's width for a whole-bone cut). Along a pass the poses are at most ``spacing_mm`` apart; a robot
+moves linearly between them.
 """
 
 from dataclasses import dataclass, replace
@@ -57,6 +57,7 @@ class ToolPath:
 
     @property
     def passes(self):
+        """Number of passes over all cuts."""
         return int(len(np.unique(np.stack((self.cut_index, self.pass_index)), axis=1).T))
 
     def in_robot_base(self, image_to_robot_base):
