@@ -234,3 +234,13 @@ def test_the_predicted_registration_error_is_shown_at_the_endpoints(tibia_patien
         controller.status().cut
     )
     controller.close()
+
+
+def test_a_plane_not_placed_yet_is_a_message(planned):
+    controller, _, _ = planned
+    empty = controller.scene.AddNewNodeByClass("vtkMRMLMarkupsPlaneNode", "NotPlaced")
+    controller.parameters.osteotomyPlane = empty
+    assert controller.run("plan_cut") is None
+    message = "osteotomy plane 'NotPlaced' is not placed yet; place it on the bone in the CT"
+    assert controller.status().message == message
+    assert controller.availability()["send_tool_path"].startswith("the plane or a setting of the cut changed")

@@ -40,7 +40,7 @@ def plane_geometry(plane_node, name="osteotomy plane"):
     """(origin, normal, depth) (3,) each of a markups plane, in world (RAS) coordinates: centre, z and y axes."""
     if plane_node is None:
         raise ValueError(f"{name}: no plane selected; place a plane on the bone with the Markups toolbar")
-    if not plane_node.GetIsPlaneValid():
+    if not _placed(plane_node):
         raise ValueError(f"{name} {plane_node.GetName()!r} is not placed yet; place it on the bone in the CT")
     origin, x_axis, y_axis, z_axis = [0.0] * 3, [0.0] * 3, [0.0] * 3, [0.0] * 3
     plane_node.GetOriginWorld(origin)
@@ -51,7 +51,7 @@ def plane_geometry(plane_node, name="osteotomy plane"):
 def cut_inputs(parameters):
     """The plane's geometry and the cut's settings as one comparable tuple (None when no plane is placed)."""
     plane = parameters.osteotomyPlane
-    if plane is None or not plane.GetIsPlaneValid():
+    if plane is None or not _placed(plane):
         return None
     geometry = tuple(np.concatenate(plane_geometry(plane)).round(9))
     ipc = parameters.ipcModel
@@ -132,6 +132,12 @@ def tool_tip_to_image(parameters):
         return None
     reference_to_image, reference_to_tracker, tool_to_tracker, tip_to_tool = (matrix_of(node) for node in nodes)
     return reference_to_image @ np.linalg.inv(reference_to_tracker) @ tool_to_tracker @ tip_to_tool
+
+
+def _placed(plane_node):
+    """True once the plane is fully defined (``GetIsPlaneValid``, or 3 defined points where a release lacks it)."""
+    valid = getattr(plane_node, "GetIsPlaneValid", None)
+    return bool(valid()) if valid is not None else plane_node.GetNumberOfDefinedControlPoints() >= 3
 
 
 def _ipc_mesh(ipc_node):
