@@ -135,9 +135,9 @@ def tool_tip_to_image(parameters):
 
 
 def _placed(plane_node):
-    """True once the plane is fully defined (``GetIsPlaneValid``, or 3 defined points where a release lacks it)."""
-    valid = getattr(plane_node, "GetIsPlaneValid", None)
-    return bool(valid()) if valid is not None else plane_node.GetNumberOfDefinedControlPoints() >= 3
+    """True once the plane is fully defined (``vtkMRMLMarkupsPlaneNode::GetIsPlaneValid``, in Slicer 5.6 to 5.10 and
+    slicer-core alike)."""
+    return bool(plane_node.GetIsPlaneValid())
 
 
 def _ipc_mesh(ipc_node):
