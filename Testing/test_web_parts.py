@@ -311,3 +311,32 @@ def test_the_views_render_when_the_needle_moves_not_when_a_tracker_transform_upd
     assert move_needle(app.scene, tip)
     assert all(count >= 1 for count in requests.values()), f"the moved needle must be drawn in every view: {requests}"
     app.close()
+
+
+def test_the_guidance_shows_the_tools_distance_and_angle_and_whether_it_is_on_plan():
+    from RAMSICPRegistrationLib.core.guidance import CutGuidance
+    from RAMSICPRegistrationLib.navigation.controller import NavigationStatus, ToolState
+    from RAMSICPRegistrationLib.web.panel_state import guidance_state
+
+    def status(guidance):
+        return NavigationStatus(
+            tools=(ToolState("ProbeToReference", "valid", 0.0),),
+            pivot_recording=False,
+            pivot_poses=0,
+            auto_collect=False,
+            hold_still_collect=False,
+            holding=False,
+            probe_poses=0,
+            probe_points=0,
+            marker_points=0,
+            guidance=guidance,
+            cut="1 cut planned",
+        )
+
+    off = CutGuidance(0, 1, -1.04, 1.3, 5.0, 0.0, 10.0, 22.5, True, False)  # 1 mm below the plane, 5 degrees
+    shown = guidance_state(status(off))
+    assert shown["guidance"]["distance"] == "-1.0" and shown["guidance"]["angle"] == "5.0"
+    assert not shown["guidance"]["on_plan"] and shown["guidance"]["text"].endswith("OFF PLAN")
+    on = CutGuidance(0, 1, -0.04, 0.1, 0.5, 0.0, 10.0, 22.5, True, True)
+    assert guidance_state(status(on))["guidance"]["distance"] == "+0.0"  # signed, but never "-0.0"
+    assert guidance_state(status(on))["guidance"]["on_plan"] and guidance_state(status(None))["guidance"] is None

@@ -102,6 +102,7 @@ def build_page(app):
             _pivot_section(app)
             _collect_section(app)
             _register_section(app)
+            _cut_section(app)
             _save_section(app)
         with page.content:
             app.layout.initialize_layout_grid(page)
@@ -198,6 +199,36 @@ def _register_section(app):
                         density="compact",
                         hide_details=True,
                     )
+
+
+def _cut_section(app):
+    """The osteotomy plan and the live guidance of the tracked cutting tool; the plane is placed in Slicer or
+    comes with the scene, the page plans on it, sends the path to the robot and shows how the tool lies."""
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Plan and cut"), v3.VCardText(classes="py-1"):
+        _action_button(app, "Plan the cut", "plan_cut", "mdi-vector-line")
+        _action_button(app, "Send the path to the robot", "send_tool_path", "mdi-robot-industrial")
+        _action_button(app, "Stop the robot", "stop_robot", "mdi-hand-back-left", color="error")
+        html.Div("{{ cut }}", v_if="cut", id="cut", classes="text-body-2")
+        html.Div(
+            "{{ robot }}<span v-if='robot_progress.length'> ({{ robot_progress[0] }} of {{ robot_progress[1] }} "
+            "poses)</span>",
+            v_if="robot",
+            id="robot",
+            classes="text-body-2",
+        )
+        with html.Div(
+            v_if="guidance",
+            id="guidance",
+            classes=("guidance && guidance.on_plan ? 'bg-success pa-2 mt-1 rounded' : 'bg-error pa-2 mt-1 rounded'",),
+        ):
+            html.Div(
+                "{{ guidance.distance }} mm &nbsp; {{ guidance.angle }}&deg;",
+                style="font-size: 34px; font-weight: 700; line-height: 1.1;",
+            )
+            html.Div("{{ guidance.text }}", classes="text-body-2")
 
 
 def _save_section(app):

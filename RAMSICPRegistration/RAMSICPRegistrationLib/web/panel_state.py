@@ -58,6 +58,25 @@ def residual_rows(table_node):
     ]
 
 
+def guidance_state(status):
+    """The plan and the live guidance of the cutting tool (issue 15), as the page shows them: the big numbers
+    (tip distance to the plan in mm, angle in degrees) and whether the tool is on plan (green) or off (red)."""
+    guidance = status.guidance
+    return {
+        "cut": status.cut,
+        "robot": status.robot,
+        "robot_progress": [] if status.robot_progress is None else list(status.robot_progress),
+        "guidance": None
+        if guidance is None
+        else {
+            "distance": f"{round(guidance.distance_mm, 1) + 0.0:+.1f}",
+            "angle": f"{guidance.angle_deg:.1f}",
+            "on_plan": bool(guidance.on_plan),
+            "text": guidance.text,
+        },
+    }
+
+
 def panel_state(controller, bridge_status):
     """The whole panel as a dict of JSON values (trame sends only the keys whose value changed)."""
     status = controller.status()
@@ -89,6 +108,7 @@ def panel_state(controller, bridge_status):
         "residuals": residual_rows(parameters.residualTable),
         "sweep_svg": "" if result is None else result_sweep_svg(result),
         "tip_to_surface": millimetres(status.tip_to_surface_mm, 1),
+        **guidance_state(status),
         "message": status.message,
         "message_is_error": status.message_is_error,
         "blocked": {action: reasons.get(action) or "" for action in ACTIONS},
