@@ -292,3 +292,57 @@ def test_marker_files_round_trip_numbers_and_statuses(tmp_path):
     write_points(tmp_path / "plain.csv", centres)  # no labels: no numbers, no status, pairs row by row
     plain = read_markers(tmp_path / "plain.csv")
     assert plain.numbers == (None,) * 4 and plain.statuses == (None,) * 4 and plain.flagged() == []
+
+
+def test_register_refuses_an_ipc_that_is_not_a_surface(case_files, tmp_path, capsys):
+    """Issue 14, item 1: a 3-point IPC gave a pose about 850 mm from the CR and exit 0; now every method refuses it."""
+    folder, ipc, _ = case_files
+    write_points(tmp_path / "three.txt", ipc[:3])
+    for method in ("cr-fused", "cr", "cr-icp", "cr-ramsicp"):
+        arguments = _arguments(folder, "--method", method, "--json", str(tmp_path / "result.json"))
+        arguments[arguments.index("--ipc") + 1] = str(tmp_path / "three.txt")
+        assert main(arguments) == 2
+        error = capsys.readouterr().err.strip()
+        assert error.startswith("ramsicp register: error: IPC: 3 points") and "\n" not in error
+        assert "cannot be the surface under the 40 probe points" in error and "at least 16" in error
+    assert not (tmp_path / "result.json").exists()
+
+
+@pytest.mark.parametrize("method, shift_mm", [("cr-icp", 20.0), ("cr-ramsicp", 20.0), ("cr-fused", 20.0), ("cr", 60.0)])
+def test_a_result_that_fails_its_checks_leads_with_warnings_and_exits_4(case_files, tmp_path, capsys, method, shift_mm):
+    """Issue 14, item 1: an IPC 20 mm from where the markers put the bone (another scan's, say). ICP and RAMSICP
+    slide the probe points onto it, far from the CR; cr-fused stays with the markers and the probe points stay off
+    the surface. Each is printed and written, led by its WARNINGs, with exit code 4. The CR alone is allowed its
+    own predicted error, which 4 markers know poorly (up to 9 times it here), so its IPC is 60 mm away."""
+    folder, ipc, trial = case_files
+    write_surface(tmp_path / "moved.vtp", ipc + (0.0, shift_mm, 0.0))
+    arguments = _arguments(folder, "--method", method, "--json", str(tmp_path / "result.json"))
+    arguments[arguments.index("--ipc") + 1] = str(tmp_path / "moved.vtp")
+    assert main(arguments) == 4
+    captured = capsys.readouterr()
+    document = json.loads((tmp_path / "result.json").read_text())
+    alarms = document["alarms"]
+    assert alarms and document["warnings"][: len(alarms)] == alarms
+    expected = "moved probe point" if method in ("cr-icp", "cr-ramsicp") else "half the probe points lie more than"
+    assert any(alarm.startswith(f"{method} moved") or expected in alarm for alarm in alarms)
+    if method in ("cr-icp", "cr-ramsicp"):
+        assert document["fine_shift_mm"] > 10.0  # it slid onto the moved IPC
+    assert captured.out.startswith("WARNING: ") and captured.out.count("WARNING: ") == len(alarms)
+    assert "exit code is 4" in captured.err and "Traceback" not in captured.err
+    assert main(_arguments(folder, "--method", method)) == 0  # the right IPC: no alarm
+    assert "WARNING" not in capsys.readouterr().out
+
+
+def test_a_reader_that_leaves_early_costs_nothing(case_files, tmp_path):
+    """Issue 14, item 8: ``ramsicp register ... | head`` said ``Broken pipe`` and exited 2. The pipe is closed before
+    the command writes a line: it still writes its JSON, exits 0 and says nothing."""
+    folder, _, _ = case_files
+    output = tmp_path / "result.json"
+    arguments = _arguments(folder, "--sweep", "--json", str(output))
+    process = subprocess.Popen(
+        [sys.executable, "-m", "RAMSICPRegistrationLib.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    process.stdout.close()
+    error = process.stderr.read().decode()
+    assert process.wait() == 0 and error == ""
+    assert len(json.loads(output.read_text())["sweep"]) == 21

@@ -129,10 +129,11 @@ def test_minimum_radius_lets_a_point_on_the_surface_move():
     assert ranges.counts(ranges.radii(5.0))[0] == 2  # the point itself and its neighbour 0.08 mm away
 
 
-@pytest.mark.parametrize("scale", [0.5, 0.99, np.nan, np.inf])
-def test_scale_below_one_or_not_finite_is_rejected(ellipsoid, scale):
+@pytest.mark.parametrize("scale", [0.5, 0.99, np.nan, np.inf, 20.01, 1e6])
+def test_scale_below_one_above_twenty_or_not_finite_is_rejected(ellipsoid, scale):
+    """Issue 14: L = 10^6 took a 1.1 GB ball query on a 200,000-point IPC; above 20 RAMSICP is plain ICP anyway."""
     points, index = ellipsoid
-    with pytest.raises(ValueError, match="must be a finite number >= 1"):
+    with pytest.raises(ValueError, match="give a number from 1 to 20"):
         ramsicp(index, points[:10], np.eye(4), scale=scale)
 
 

@@ -1,10 +1,15 @@
 """The whole registration (CR, CR-ICP, CR-RAMSICP) on the tibia virtual patient, with its warnings."""
 
+import re
+
 import numpy as np
 import pytest
 
 from RAMSICPRegistrationLib.core.registration import register
+from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.core.transforms import apply_transform, invert_transform, make_transform
+
+from conftest import ellipsoid_points
 
 
 def _exact_case(patient, rng, marker_shift=(0.0, 0.0, 0.0), count=60):
@@ -116,7 +121,8 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
         ({"targets_image": np.zeros((3, 3)), "targets_patient": np.zeros((4, 3))}, "3 in the image"),
         ({"method": "cr-ramsicp", "policy": "targets"}, "ask for the sweep"),
         ({"method": "cr-ramsicp", "sweep": True, "policy": "targets"}, "needs target points"),
-        ({"method": "cr-ramsicp", "scale": 0.5}, "must be a finite number >= 1"),
+        ({"method": "cr-ramsicp", "scale": 0.5}, "L = 0.5: give a number from 1 to 20"),
+        ({"method": "cr-ramsicp", "scale": 1e6}, "L = 1e+06: give a number from 1 to 20"),
     ],
 )
 def test_bad_requests_raise_clear_errors(tibia_patient, tibia_index, rng, change, message):
@@ -136,3 +142,61 @@ def test_ipc_may_be_given_as_an_array():
     ppc = apply_transform(invert_transform(pose), plane_with_bump[:50])
     result = register(plane_with_bump, ppc, apply_transform(pose, markers), markers, method="cr-icp")
     np.testing.assert_allclose(result.reference_to_image, pose, atol=1e-6)
+
+
+def _ellipsoid_case(ipc_shift, fle_mm=None, method="cr-icp"):
+    """Probe points on an ellipsoid that fixes all six pose parameters, exact markers, an IPC moved by a known
+    vector: the fine step then moves every point by exactly that vector (mm)."""
+    ipc = ellipsoid_points(40_000) + ipc_shift
+    ppc = ellipsoid_points(300, seed=1)
+    markers = np.array([[60.0, 0.0, 0.0], [0.0, 60.0, 0.0], [-60.0, 0.0, 0.0], [0.0, -45.0, 30.0]])
+    return register(ipc, ppc, markers, markers, method=method, fle_mm=fle_mm)
+
+
+def test_a_fine_step_far_from_the_cr_is_an_alarm():
+    """Issue 14, item 1: a fine step that leaves the CR by far more than the marker error is an alarm.
+
+    The markers are exact and the IPC lies 5 mm off: the fine step moves every point 5 mm. For an FLE of 0.1 mm the
+    CR cannot be 5 mm off (limit: the 1 mm floor); for an FLE of 5 mm it can (the CR's predicted error is at least
+    FLE / 2 = 2.5 mm everywhere, Fitzpatrick-West-Maurer, so the limit is above 3.9 x 2.5 mm).
+    """
+    result = _ellipsoid_case((0.0, 0.0, 5.0), fle_mm=0.1)
+    # point-to-point ICP on 40,000 sampled points stops within the sampling's 0.1 mm
+    assert result.fine_shift_mm == pytest.approx(5.0, abs=0.1)
+    np.testing.assert_allclose(result.reference_to_image[:3, 3], (0.0, 0.0, 5.0), atol=0.1)
+    assert len(result.alarms) == 1
+    assert re.search(r"cr-icp moved probe point \d+ 5\.\d mm from where the CR put it", result.alarms[0])
+    assert "limit 1.0 mm" in result.alarms[0]
+    assert result.warnings[0] == result.alarms[0]  # the alarm leads the warnings
+    assert result.to_dict()["alarms"] == list(result.alarms)
+    assert _ellipsoid_case((0.0, 0.0, 5.0), fle_mm=5.0).alarms == ()
+    assert _ellipsoid_case((0.0, 0.0, 0.0), fle_mm=0.1).alarms == ()  # the IPC in place: nothing moves
+
+
+def test_probe_points_ending_far_from_the_surface_are_an_alarm():
+    """Probe points on an ellipsoid 3 mm larger than the IPC's cannot reach it: the median distance stays about
+    3 mm (1.8 to 3 mm: less where the surface is flatter), above the 1 mm limit, whatever the method."""
+    ipc = ellipsoid_points(40_000)
+    ppc = ellipsoid_points(300, semi_axes=(43.0, 28.0, 18.0), seed=1)
+    markers = np.array([[60.0, 0.0, 0.0], [0.0, 60.0, 0.0], [-60.0, 0.0, 0.0], [0.0, -45.0, 30.0]])
+    for method in ("cr", "cr-icp", "cr-ramsicp", "cr-fused"):
+        result = register(ipc, ppc, markers, markers, method=method)
+        assert 1.8 < np.median(result.residuals_mm) <= 3.0
+        assert any("half the probe points lie more than" in alarm for alarm in result.alarms), method
+    inside = register(ipc, ellipsoid_points(300, seed=1), markers, markers, method="cr-fused")
+    assert inside.alarms == ()
+
+
+def test_an_ipc_too_coarse_for_the_probe_points_is_refused():
+    """Issue 14, item 1: an IPC must be a surface. A 1 mm grid holds ln 2 / pi = 0.22 points per mm^2 by the rule's
+    random-points count: a 10 x 10 mm patch of probe points finds 22 (enough), a 6 x 6 mm patch 8 (< 16)."""
+    grid = np.stack(np.meshgrid(np.arange(100.0), np.arange(100.0), [0.0], indexing="ij"), axis=-1).reshape(-1, 3)
+    index = SurfaceIndex(grid)
+    assert index.spacing_mm == pytest.approx(1.0)
+    corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
+    index.check_covers(40.0 + 10.0 * corners)
+    with pytest.raises(ValueError, match="span 6 x 6 mm: about 8 IPC points lie there, and fitting the surface needs"):
+        index.check_covers(40.0 + 6.0 * corners)
+    markers = np.array([[60.0, 0.0, 0.0], [0.0, 60.0, 0.0], [-60.0, 0.0, 0.0], [0.0, -45.0, 30.0]])
+    with pytest.raises(ValueError, match=r"IPC: 3 points .* cannot be the surface under the 300 probe points"):
+        register(ellipsoid_points(3), ellipsoid_points(300, seed=1), markers, markers)

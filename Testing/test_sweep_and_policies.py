@@ -7,7 +7,7 @@ from RAMSICPRegistrationLib.core.icp import FineResult, ramsicp
 from RAMSICPRegistrationLib.core.metrics import target_registration_error
 from RAMSICPRegistrationLib.core.registration import select_scale
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
-from RAMSICPRegistrationLib.core.sweep import PAPER_SCALES, SweepEntry, make_scales, sweep_scales
+from RAMSICPRegistrationLib.core.sweep import MAX_SCALES, PAPER_SCALES, SweepEntry, make_scales, sweep_scales
 from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
 
 from conftest import ellipsoid_points
@@ -20,10 +20,19 @@ def test_paper_scales_are_1_to_5_step_0_2():
     assert make_scales(1.0, 5.0, 0.2) == PAPER_SCALES
 
 
-@pytest.mark.parametrize("start, stop, step", [(0.5, 5, 0.2), (1, 5, 0), (3, 2, 0.1), (1, np.nan, 0.2)])
+@pytest.mark.parametrize(
+    "start, stop, step", [(0.5, 5, 0.2), (1, 5, 0), (3, 2, 0.1), (1, np.nan, 0.2), (1, 1e6, 1e-4), (1, 20.5, 1)]
+)
 def test_bad_scale_ranges_are_rejected(start, stop, step):
-    with pytest.raises(ValueError, match="need 1 <= start <= stop and step > 0"):
+    with pytest.raises(ValueError, match="need 1 <= start <= stop <= 20, a step above 0 and at most 101 values"):
         make_scales(start, stop, step)
+
+
+def test_a_sweep_runs_at_most_101_values():
+    """Issue 14: ``--scales 1 1e6 0.0001`` asked for 10^10 values (74.5 GiB); the count is bounded and said."""
+    assert len(make_scales(1.0, 5.0, 0.04)) == MAX_SCALES == 101
+    with pytest.raises(ValueError, match="1 to 5 step 0.001: 4,001 values of L, but a sweep runs at most 101"):
+        make_scales(1.0, 5.0, 0.001)
 
 
 def test_sweep_equals_independent_runs_and_reports_tre():

@@ -1,9 +1,15 @@
 """The ``ramsicp`` command line: ``register`` files, ``plan`` a cut, run the ``demo``, serve the browser view
-(``web``). It owns the console."""
+(``web``). It owns the console.
+
+Only what the argument parser needs is imported here (numpy and light constants), so that ``--help`` and a mistyped
+argument answer at once; each command imports its own machinery (scipy, VTK, the image side) when it runs.
+"""
 
 import argparse
 import json
 import logging
+import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -11,32 +17,23 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S, HoldStillDetector
-from .core.registration import DEFAULT_METHOD, METHODS, POLICIES, register
-from .core.robot import tcp_four_point
-from .core.surface_index import SurfaceIndex
-from .core.sweep import make_scales
-from .core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS, plan_document, plan_osteotomy
-from .core.validation import as_transform
-from .experiments.demo import FUSED_LABEL, MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM, run_demo
-from .experiments.experiment_report import write_outputs
-from .experiments.experiments import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES, run_experiments
-from .image.ct_pipeline import process_ct
-from .image.ct_segmentation import DEFAULT_THRESHOLD_HU, resample_points
-from .image.marker_spheres import sphere_labelmap
-from .image.volume_io import CTVolume, load_volume, save_nrrd
-from .io.marker_files import check_markers_path, flagged_message, pair_markers, read_markers, write_markers
-from .io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
-from .io.point_files import POINT_SUFFIXES, _suffix, read_points, write_points
-from .io.surface_files import SURFACE_SUFFIXES, read_surface_mesh, read_surface_points, write_surface
-from .simulation.ct_painting import BODY_MATERIALS, ReferenceBodyModel, rotated_direction
-from .simulation.ct_phantom import FILE_FRAMES, make_ct_phantom, write_phantom
-from .simulation.package_data import BONES, shipped_patient
-from .simulation.virtual_patient import LAYOUT_WORDS
+from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
+from .core.registration import DEFAULT_METHOD, METHODS, POLICIES
+from .core.sweep import MAX_SCALES
+from .core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS
+from .experiments.design import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES
+from .image.hounsfield import DEFAULT_THRESHOLD_HU
+from .io.file_checks import check_output_file, check_output_folder
+from .io.ndi_tools import DEFAULT_REFERENCE_TOOL
+from .io.point_files import POINT_SUFFIXES
+from .simulation.ct_painting import BODY_MATERIALS
+from .simulation.package_data import BONES
 
 EXIT_BAD_INPUT = 2
 #: ``ramsicp ipc --markers``: every file was written, but fewer marker centres are usable than the tool has.
 EXIT_TOO_FEW_MARKERS = 3
+#: ``ramsicp register``: the result is printed and written, but it failed a check (``RegistrationResult.alarms``).
+EXIT_ALARM = 4
 
 
 def main(argv=None):
@@ -46,16 +43,87 @@ def main(argv=None):
     logging.basicConfig(
         level=logging.DEBUG if arguments.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )
+    sys.stdout = _ReaderMayLeave(sys.stdout)
     try:
-        return arguments.run(arguments)
+        code = arguments.run(arguments)
+        sys.stdout.flush()
+        return code
     except (ValueError, OSError) as error:
         message = " ".join(str(error).split())
         print(f"ramsicp {arguments.command}: error: {message}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    finally:
+        sys.stdout = sys.stdout.stream
+
+
+class _ReaderMayLeave:
+    """Standard output for a reader that may stop reading (``ramsicp register ... | head``).
+
+    When the pipe breaks, the rest of the output goes to ``os.devnull``, as Python's documentation recommends for
+    SIGPIPE, and the command goes on: its files are still written and its exit code is its own, with no traceback
+    and no "Broken pipe" message.
+    """
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text):
+        try:
+            return self.stream.write(text)
+        except BrokenPipeError:
+            self._to_devnull()
+            return len(text)
+
+    def flush(self):
+        try:
+            self.stream.flush()
+        except BrokenPipeError:
+            self._to_devnull()
+
+    def _to_devnull(self):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self.stream.fileno())
+        os.close(devnull)
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a mistake is one line (which option, what is wrong), as every other error of the command."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _number(kind, test, requirement):
+    """An argparse type: ``kind(text)`` that passes ``test``, else one line saying what to give."""
+
+    def convert(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = None
+        if value is None or (kind is float and not math.isfinite(value)) or not test(value):
+            raise argparse.ArgumentTypeError(f"{text!r}: {requirement}")
+        return value
+
+    return convert
+
+
+_POSITIVE_MM = _number(float, lambda value: value > 0, "give a positive number of mm")
+_FINITE = _number(float, lambda value: True, "give a finite number")
+_COUNT = _number(int, lambda value: value >= 1, "give a whole number, 1 or more")
+_SEED = _number(int, lambda value: value >= 0, "give a whole number, 0 or more")
+
+
+def _threshold(text):
+    """``ramsicp ipc --threshold``: a number of HU, or 'auto' (Otsu)."""
+    return text if text == "auto" else _number(float, lambda value: True, "give a number of HU or 'auto'")(text)
 
 
 def _parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ramsicp", description="CR-RAMSICP patient-to-image registration for robot-assisted long-bone osteotomy."
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -92,15 +160,17 @@ def _parser():
         help=f"default {DEFAULT_METHOD} (markers and probe points in one fit); cr-ramsicp with --scale or --sweep",
     )
     how = reg.add_mutually_exclusive_group()
-    how.add_argument("--scale", type=float, help="scale factor L for one RAMSICP run (default 5; cr-ramsicp)")
+    how.add_argument(
+        "--scale", type=_FINITE, help="scale factor L for one RAMSICP run, 1 to 20 (default 5; cr-ramsicp)"
+    )
     how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy (cr-ramsicp)")
     reg.add_argument(
         "--scales",
         nargs=3,
-        type=float,
+        type=_FINITE,
         metavar=("START", "STOP", "STEP"),
         default=(1.0, 5.0, 0.2),
-        help="the sweep's range (default 1 5 0.2)",
+        help=f"the sweep's range (default 1 5 0.2; L from 1 to 20, at most {MAX_SCALES} values)",
     )
     reg.add_argument(
         "--policy",
@@ -109,7 +179,7 @@ def _parser():
     )
     reg.add_argument(
         "--fle",
-        type=float,
+        type=_POSITIVE_MM,
         help="marker localisation error (mm) for the predicted TRE and cr-fused's marker weights "
         "(default: estimated from the FRE)",
     )
@@ -119,14 +189,18 @@ def _parser():
         default="RAS",
         help="frame of files that do not state one (default RAS)",
     )
-    reg.add_argument("--json", type=Path, help="write the full result as JSON")
+    reg.add_argument(
+        "--json",
+        type=Path,
+        help=f"write the full result as JSON (also when the result fails a check: exit code {EXIT_ALARM})",
+    )
     reg.set_defaults(run=_run_register)
 
     demo = commands.add_parser(
         "demo", help="CR, CR-ICP, CR-RAMSICP and cr-fused on a virtual patient from a real bone (tibia or ilium)"
     )
-    demo.add_argument("--trials", type=int, default=50, help="number of simulated registrations (default 50)")
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    demo.add_argument("--trials", type=_COUNT, default=50, help="number of simulated registrations (default 50)")
+    demo.add_argument("--seed", type=_SEED, default=0, help="random seed (default 0)")
     demo.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
     demo.add_argument(
         "--image-source",
@@ -140,7 +214,8 @@ def _parser():
         "--live",
         action="store_true",
         help="play one trial through the whole tracking chain: Vega simulator -> NDI driver -> "
-        "OpenIGTLink server -> receiver (MRML) -> point collection -> CR-RAMSICP",
+        "OpenIGTLink server -> receiver (MRML) -> point collection -> cr-fused; needs the [live] extra "
+        "(pip install 'ramsicp-navigator[live]': slicer-core, Python >= 3.10)",
     )
     demo.add_argument(
         "--record",
@@ -163,17 +238,17 @@ def _parser():
         "--reference", default="ReferenceToTracker", help="the reference body's transform (default ReferenceToTracker)"
     )
     collect.add_argument(
-        "--tip", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"), help="the tip in the tool's frame (mm)"
+        "--tip", type=_FINITE, nargs=3, required=True, metavar=("X", "Y", "Z"), help="the tip in the tool's frame (mm)"
     )
     collect.add_argument(
         "--hold-still-mm",
-        type=float,
+        type=_POSITIVE_MM,
         default=DEFAULT_STILL_MM,
         help=f"radius the tip stays within during a touch (default {DEFAULT_STILL_MM:g} mm)",
     )
     collect.add_argument(
         "--hold-still-s",
-        type=float,
+        type=_number(float, lambda value: value > 0, "give a positive number of seconds"),
         default=DEFAULT_STILL_S,
         help=f"shortest touch (default {DEFAULT_STILL_S:g} s)",
     )
@@ -187,10 +262,11 @@ def _parser():
     ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder")
     ipc.add_argument(
         "--threshold",
-        default=str(DEFAULT_THRESHOLD_HU),
+        type=_threshold,
+        default=DEFAULT_THRESHOLD_HU,
         help=f"bone threshold in HU, or 'auto' (Otsu); default {DEFAULT_THRESHOLD_HU:g}",
     )
-    ipc.add_argument("--spacing", type=float, help="thin the IPC to about one point per this many mm")
+    ipc.add_argument("--spacing", type=_POSITIVE_MM, help="thin the IPC to about one point per this many mm")
     ipc.add_argument(
         "--keep-cavities",
         action="store_true",
@@ -229,8 +305,13 @@ def _parser():
     )
     phantom.add_argument("--out", type=Path, required=True, help="folder for the phantom's files")
     phantom.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
-    phantom.add_argument("--seed", type=int, default=0)
-    phantom.add_argument("--noise", type=float, default=25.0, help="image noise, HU (default 25; low dose: 40-60)")
+    phantom.add_argument("--seed", type=_SEED, default=0)
+    phantom.add_argument(
+        "--noise",
+        type=_number(float, lambda value: value >= 0, "give a noise of 0 HU or more"),
+        default=25.0,
+        help="image noise, HU (default 25; low dose: 40-60)",
+    )
     marker = {"type": int, "choices": range(1, 5), "metavar": "N"}
     phantom.add_argument("--partial", **marker, help="make marker N (1-4) partial: a cap missing")
     phantom.add_argument("--deformed", **marker, help="make marker N (1-4) deformed: stretched by 20 %%")
@@ -244,10 +325,10 @@ def _parser():
             "dense-polymer (1000 HU) or aluminium (2500 HU): then spheres, posts and frame are one bright object",
         )
         phantom.add_argument(
-            f"--{part}-diameter", type=float, default=default_diameter, help=f"mm (default {default_diameter:g})"
+            f"--{part}-diameter", type=_POSITIVE_MM, default=default_diameter, help=f"mm (default {default_diameter:g})"
         )
     phantom.add_argument(
-        "--post-length", type=float, default=12.0, help="from the sphere's centre to the frame, mm (default 12)"
+        "--post-length", type=_POSITIVE_MM, default=12.0, help="from the sphere's centre to the frame, mm (default 12)"
     )
     phantom.add_argument(
         "--metal",
@@ -257,7 +338,7 @@ def _parser():
     )
     phantom.add_argument(
         "--oblique",
-        type=float,
+        type=_FINITE,
         default=0.0,
         metavar="DEG",
         help="turn the scanner grid by DEG about an oblique axis (a non-identity direction matrix)",
@@ -349,14 +430,14 @@ def _parser():
         "reproduce", help="the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with cr-fused"
     )
     reproduce.add_argument("--experiment", choices=(*EXPERIMENTS, "all"), default="all")
-    reproduce.add_argument("--trials", type=int, help="repetitions per condition (default: the paper's)")
+    reproduce.add_argument("--trials", type=_COUNT, help="repetitions per condition (default: the paper's)")
     reproduce.add_argument(
         "--subjects",
-        type=int,
+        type=_COUNT,
         default=DEFAULT_SUBJECTS,
         help=f"virtual patients, the bones {', '.join(SUBJECT_BONES)} in turn (default {DEFAULT_SUBJECTS})",
     )
-    reproduce.add_argument("--seed", type=int, default=0)
+    reproduce.add_argument("--seed", type=_SEED, default=0)
     reproduce.add_argument("--image-source", choices=("ct", "mesh"), default="ct")
     reproduce.add_argument(
         "--out", type=Path, default=Path("reproduction"), help="folder for report.md, results.json, PNGs"
@@ -396,9 +477,17 @@ def _parser():
 
 
 def _run_register(arguments):
+    from .core.registration import register
+    from .core.surface_index import SurfaceIndex
+    from .core.sweep import make_scales
+    from .io.point_files import read_points
+    from .io.surface_files import read_surface_points
+
     space = arguments.untagged_space
     if (arguments.targets_image is None) != (arguments.targets_patient is None):
         raise ValueError("give --targets-image and --targets-patient together")
+    scales = make_scales(*arguments.scales)
+    check_output_file(arguments.json, "--json", (".json",))
     clock = time.perf_counter()
     ipc = read_surface_points(arguments.ipc, space)
     ppc = read_points(arguments.ppc, space).points
@@ -417,17 +506,26 @@ def _run_register(arguments):
         method=arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp"),
         scale=arguments.scale,
         sweep=arguments.sweep,
-        scales=make_scales(*arguments.scales),
+        scales=scales,
         policy=arguments.policy,
         fle_mm=arguments.fle,
     )
     seconds = time.perf_counter() - clock
-    print("".join(f"WARNING: {warning}\n" for warning in marker_warnings) + _format_result(result, len(ipc), seconds))
-    if arguments.json:
+    if arguments.json:  # written before anything is printed: a reader that leaves early loses nothing
         document = result.to_dict()
         document["warnings"] = marker_warnings + document["warnings"]
         document["seconds"] = seconds
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    loud = marker_warnings + list(result.alarms)
+    print("".join(f"WARNING: {warning}\n" for warning in loud) + _format_result(result, len(ipc), seconds))
+    if result.alarms:
+        print(
+            f"ramsicp register: the result failed {len(result.alarms)} check(s) (WARNING above); it is printed"
+            + (f" and written to {arguments.json}" if arguments.json else "")
+            + f", and the exit code is {EXIT_ALARM}",
+            file=sys.stderr,
+        )
+        return EXIT_ALARM
     return 0
 
 
@@ -436,6 +534,8 @@ def _read_markers_pair(arguments, space):
 
     Returns (markers_image (K, 3), markers_patient (K, 3), warnings): a warning for each flagged marker used.
     """
+    from .io.marker_files import flagged_message, pair_markers, read_markers
+
     image = read_markers(arguments.markers_image, space)
     patient = read_markers(arguments.markers_patient, space)
     markers_image, markers_patient, _ = pair_markers(image, patient)
@@ -499,7 +599,8 @@ def _format_result(result, ipc_count, seconds):
             result_text = f"{entry.result.rms_mm:8.3f}   {tre:>8}   {entry.result.iterations:10d}"
             lines.append(f"      {entry.scale:5.1f}   {result_text}{mark}")
     for warning in result.warnings:
-        lines.append(f"warning: {warning}")
+        if warning not in result.alarms:  # the alarms lead the summary, in capitals
+            lines.append(f"warning: {warning}")
     return "\n".join(lines)
 
 
@@ -530,9 +631,15 @@ class _ProgressBar:
 def _run_demo(arguments):
     if arguments.record is not None and not arguments.live:
         raise ValueError("--record records the tracker feed: use it with --live")
-    _check_output(arguments.record, "--record", (".mha",))
+    if arguments.live and (arguments.json or arguments.screenshot):
+        raise ValueError("--json and --screenshot report the simulated trials; the live demo (--live) writes neither")
+    check_output_file(arguments.record, "--record", (".mha",))
+    check_output_file(arguments.json, "--json", (".json",))
+    check_output_file(arguments.screenshot, "--screenshot", (".png",))
     if arguments.live:
         return _run_live_demo(arguments)
+    from .experiments.demo import run_demo
+
     clock = time.perf_counter()
     report = run_demo(
         trials=arguments.trials,
@@ -543,15 +650,18 @@ def _run_demo(arguments):
         screenshot=arguments.screenshot,
     )
     total = time.perf_counter() - clock
-    print(_format_demo(report, total))
-    if arguments.json:
+    if arguments.json:  # written before anything is printed: a reader that leaves early loses nothing
         document = report.to_dict()
         document["seconds"]["total"] = total
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    print(_format_demo(report, total))
     return 0
 
 
 def _format_demo(report, total_seconds):
+    from .experiments.demo import FUSED_LABEL, MARKER_MODES, PAPER_ROWS, PAPER_TRE_MM
+    from .simulation.virtual_patient import LAYOUT_WORDS
+
     bone = BONES[report.bone]
     words = LAYOUT_WORDS[bone["anatomy"]]
     side = report.image_side
@@ -616,7 +726,9 @@ def _run_live_demo(arguments):
         ) from None
     from OpenIGTLinkBridgeLib.live_demo import run_live_demo
 
-    from .experiments.demo import PROBE_NOISE_MM, ct_image_side
+    from .core.surface_index import SurfaceIndex
+    from .experiments.demo import PAPER_TRE_MM, PROBE_NOISE_MM, ct_image_side
+    from .simulation.package_data import shipped_patient
 
     clock = time.perf_counter()
     patient, vertices, triangles = shipped_patient(arguments.bone, arguments.seed)
@@ -660,9 +772,12 @@ def _run_collect(arguments):
     from OpenIGTLinkBridgeLib.plus_sequence import read_sequence
     from OpenIGTLinkBridgeLib.recorded_touches import find_recorded_touches, frame_timing
 
+    from .core.hold_still import HoldStillDetector
+    from .io.point_files import write_points
+
     HoldStillDetector(arguments.hold_still_mm, arguments.hold_still_s)  # refuses bad settings before any work
-    _check_output(arguments.out, "--out", POINT_SUFFIXES)
-    _check_output(arguments.json, "--json", (".json",))
+    check_output_file(arguments.out, "--out", POINT_SUFFIXES)
+    check_output_file(arguments.json, "--json", (".json",))
     recording = read_sequence(arguments.recording)
     found = find_recorded_touches(
         recording,
@@ -715,25 +830,23 @@ def _run_collect(arguments):
     return 0
 
 
-def _check_output(path, option, suffixes):
-    """Refuse an output path that cannot be written before any work is done."""
-    if path is None:
-        return
-    if path.is_dir():
-        raise ValueError(f"{option} {path}: is a folder; give a file name")
-    if not any(str(path).lower().endswith(suffix) for suffix in suffixes):
-        raise ValueError(f"{option} {path}: use one of {', '.join(suffixes)}")
-    if not path.parent.is_dir():
-        raise ValueError(f"{option} {path}: the folder {path.parent} does not exist")
-
-
 def _run_ipc(arguments):
-    threshold = arguments.threshold if arguments.threshold == "auto" else _number(arguments.threshold, "--threshold")
-    for path in (arguments.out, arguments.markers):
-        if path is not None and _suffix(path) not in POINT_SUFFIXES + (".vtk", ".vtp", ".stl", ".ply", ".obj"):
-            raise ValueError(f"{path}: unknown output type")
+    from .image.ct_pipeline import process_ct
+    from .image.ct_segmentation import resample_points
+    from .image.marker_spheres import sphere_labelmap
+    from .image.volume_io import CTVolume, load_volume, save_nrrd
+    from .io.marker_files import check_markers_path, write_markers
+    from .io.ndi_tools import tool_marker_geometry
+    from .io.point_files import _suffix, write_points
+    from .io.surface_files import SURFACE_SUFFIXES, write_surface
+
+    threshold = arguments.threshold
+    check_output_file(arguments.out, "--out", SURFACE_SUFFIXES + POINT_SUFFIXES)
+    check_output_file(arguments.markers, "--markers")
     if arguments.markers is not None:
-        check_markers_path(arguments.markers)
+        check_markers_path(arguments.markers)  # a file that keeps each marker's number and status
+    check_output_file(arguments.labelmap, "--labelmap", (".nrrd",))
+    check_output_file(arguments.json, "--json", (".json",))
     clock = time.perf_counter()
     volume = load_volume(arguments.ct)
     load_seconds = time.perf_counter() - clock
@@ -803,8 +916,11 @@ def _run_ipc(arguments):
 
 
 def _run_phantom(arguments):
-    if arguments.out.exists() and not arguments.out.is_dir():
-        raise ValueError(f"--out {arguments.out} is a file; give a folder for the phantom's files")
+    from .simulation.ct_painting import ReferenceBodyModel, rotated_direction
+    from .simulation.ct_phantom import FILE_FRAMES, make_ct_phantom, write_phantom
+    from .simulation.package_data import shipped_patient
+
+    check_output_folder(arguments.out, "--out")
     defects = {}
     if arguments.partial is not None:
         defects[arguments.partial] = "partial"
@@ -847,6 +963,10 @@ def _run_phantom(arguments):
 
 
 def _run_reproduce(arguments):
+    from .experiments.experiment_report import write_outputs
+    from .experiments.experiments import run_experiments
+
+    check_output_folder(arguments.out, "--out")
     clock = time.perf_counter()
     experiments = EXPERIMENTS if arguments.experiment == "all" else (arguments.experiment,)
     results = run_experiments(
@@ -915,7 +1035,11 @@ def _run_web(arguments):
 
 
 def _run_plan(arguments):
-    _check_output(arguments.out, "--out", (".json",))
+    from .core.tool_path import plan_document, plan_osteotomy
+    from .io.point_files import _suffix, read_points
+    from .io.surface_files import SURFACE_SUFFIXES, read_surface_mesh
+
+    check_output_file(arguments.out, "--out", (".json",))
     image_to_base = None
     if arguments.image_to_robot_base is not None:
         image_to_base = _read_matrix(arguments.image_to_robot_base, "--image-to-robot-base")
@@ -961,7 +1085,9 @@ def _run_plan(arguments):
 
 
 def _run_tcp(arguments):
-    _check_output(arguments.json, "--json", (".json",))
+    from .core.robot import tcp_four_point
+
+    check_output_file(arguments.json, "--json", (".json",))
     poses = _read_poses(arguments.flange_poses)
     result = tcp_four_point(poses)
     print(f"flange poses     {len(poses)} from {arguments.flange_poses}")
@@ -979,8 +1105,7 @@ def _run_cut_demo(arguments):
     from .experiments.cut_trial import run_cut_trial
     from .navigation.cut_render import render_guidance
 
-    if arguments.out.exists() and not arguments.out.is_dir():
-        raise ValueError(f"--out {arguments.out} is a file; give a folder for the results")
+    check_output_folder(arguments.out, "--out")
     if not (np.isfinite(arguments.speed) and arguments.speed > 0):
         raise ValueError(f"--speed {arguments.speed}: give a speed above 0 mm/s")
     arguments.out.mkdir(parents=True, exist_ok=True)
@@ -1041,6 +1166,8 @@ def _read_matrix(path, option):
         matrix = np.zeros(0)
     if matrix.shape != (4, 4):
         raise ValueError(f"{option} {path}: expected a 4 x 4 matrix (4 rows of 4 numbers), got shape {matrix.shape}")
+    from .core.validation import as_transform
+
     return as_transform(matrix, f"{option} {path}")
 
 
@@ -1061,10 +1188,9 @@ def _read_poses(path):
 
 
 def _read_numbers(path, option):
-    if path.is_dir():
-        raise ValueError(f"{option} {path}: is a folder; give a file")
-    if not path.is_file():
-        raise ValueError(f"{option} {path}: no such file")
+    from .io.file_checks import check_input_file
+
+    check_input_file(path, f"{option} file")
     text = path.read_text(encoding="utf-8", errors="replace")
     if path.suffix.lower() == ".json":
         try:
@@ -1076,13 +1202,6 @@ def _read_numbers(path, option):
         return [[float(value) for value in row] for row in rows]
     except ValueError as error:
         raise ValueError(f"{option} {path}: {error}; give numbers only") from None
-
-
-def _number(text, name):
-    try:
-        return float(text)
-    except ValueError:
-        raise ValueError(f"{name} {text!r}: give a number of HU or 'auto'") from None
 
 
 if __name__ == "__main__":

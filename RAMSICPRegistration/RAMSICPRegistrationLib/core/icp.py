@@ -35,6 +35,10 @@ DEFAULT_TOLERANCE_MM = 1e-5
 DEFAULT_MAX_ITERATIONS = 200
 #: Smallest matching radius k_i (mm), see interpretation 2 in the module docstring.
 DEFAULT_MIN_RADIUS_MM = 0.1
+#: Largest L accepted: four times the paper's largest. Beyond it RAMSICP is plain ICP in all but memory: the ranges of
+#: points a millimetre off the surface already reach 20 mm, and one ball query at L = 10^6 over a 200,000-point IPC
+#: takes 1.1 GB (measured).
+MAX_SCALE = 20.0
 #: Relative slack on the inclusive range test, so that the closest point at exactly D_i stays inside.
 _RANGE_SLACK = 1e-9
 
@@ -209,8 +213,9 @@ def _iterate(index, cr_points, match, initial_transform, max_iterations, toleran
 
 
 def _check_scale(scale):
-    if not np.isfinite(scale) or scale < 1.0:
+    if not (np.isfinite(scale) and 1.0 <= scale <= MAX_SCALE):
         raise ValueError(
-            f"scale factor L = {scale}: must be a finite number >= 1 (below 1 the matching range would "
-            "exclude the closest IPC point, eq. 7); the paper sweeps 1 to 5"
+            f"scale factor L = {scale:g}: give a number from 1 to {MAX_SCALE:g} (below 1 the matching range would "
+            "exclude the closest IPC point, eq. 7; far above 5 RAMSICP is plain ICP, --method cr-icp); the paper "
+            "sweeps 1 to 5"
         )

@@ -5,9 +5,9 @@
 
 import logging
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-from scipy import stats
 
 from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
 from .fused import (
@@ -54,6 +54,14 @@ OUTLIER_LIMIT_MM = 1.0
 DISAGREEMENT_P = 0.01
 #: cr-fused: probe points that fit the surface this many times worse than the prior noise are reported.
 SURFACE_NOISE_RATIO = 2.0
+#: The fine step (ICP, RAMSICP, cr-fused) is doubted when it moves a probe point or a target from where the CR put it
+#: further than the CR's own error explains, at this significance: the move over the CR's predicted RMS error there
+#: (Fitzpatrick-West-Maurer, ``metrics.predicted_tre``), squared, follows at worst chi-square(1) (all the error in one
+#: direction), or F(1, 3K - 6) when the FLE is estimated from the FRE of K markers (``_shift_limit_ratio``).
+ALARM_P = 1e-4
+#: Moves, and the probe points' median distance to the surface, below this (mm) are never doubted, whatever the
+#: marker error.
+ALARM_FLOOR_MM = 1.0
 #: How cr-fused's own warnings begin (for counting them).
 FUSED_WARNINGS = (
     "The markers and the probe points disagree",
@@ -71,6 +79,11 @@ class RegistrationResult:
     ``residuals_mm`` are the distances of the registered probe points to the IPC, ``ppc_rms_mm`` their RMS.
     ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets; ``predicted_cr_tre_mm`` is the
     Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm``.
+
+    ``alarms`` are the checks the result failed, in words (they lead ``warnings`` too): the fine step moved the probe
+    points or targets from the CR far more than the marker error explains (``fine_shift_mm`` is its largest move),
+    or the probe points end far from the surface. A result with alarms should not be used before it has been
+    looked at.
 
     cr-fused also gives ``fused_weights`` (the FLE and surface noise behind its weights, ``core.fused.FusedWeights``),
     ``pose_covariance`` (6, 6: small rotation in rad about ``covariance_centre_mm``, then translation in mm, image
@@ -99,6 +112,8 @@ class RegistrationResult:
     pose_covariance: np.ndarray = None
     covariance_centre_mm: np.ndarray = None
     predicted_tre_mm: np.ndarray = None
+    alarms: tuple = ()
+    fine_shift_mm: float = None
 
     @property
     def predicted_tre_rms_mm(self):
@@ -142,6 +157,8 @@ class RegistrationResult:
             "covariance_centre_mm": listed(self.covariance_centre_mm),
             "predicted_tre_mm": listed(self.predicted_tre_mm),
             "predicted_tre_rms_mm": self.predicted_tre_rms_mm,
+            "alarms": list(self.alarms),
+            "fine_shift_mm": self.fine_shift_mm,
         }
 
 
@@ -178,8 +195,9 @@ def register(
         probe_noise_mm: RMS 3-D probe-tip error (mm) behind cr-fused's surface weights.
 
     Raises:
-        ValueError: bad points (see ``fit_rigid_transform``), unknown method or policy, a policy that needs
-            targets without them, sweep or scale with a method other than cr-ramsicp.
+        ValueError: bad points (see ``fit_rigid_transform``), an IPC too coarse to be the surface under the probe
+            points (``SurfaceIndex.check_covers``), unknown method or policy, a policy that needs targets without
+            them, sweep or scale with a method other than cr-ramsicp.
     """
     if method not in METHODS:
         raise ValueError(f"method {method!r}: use one of {', '.join(METHODS)}")
@@ -191,6 +209,7 @@ def register(
     index = ipc if isinstance(ipc, SurfaceIndex) else SurfaceIndex(ipc)
     ppc = as_points(ppc, "PPC (probe points)", min_count=3)
     check_not_collinear(ppc, "PPC (probe points)")
+    index.check_covers(ppc)
     targets_patient, targets_image = _check_targets(targets_patient, targets_image)
     coarse = fit_rigid_transform(
         markers_patient,
@@ -245,6 +264,19 @@ def register(
         warnings.append(report.warning + held)
 
     fle = fle_mm if fle_mm is not None else fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
+    shift, alarms = _alarms(
+        method,
+        coarse.transform,
+        None if fine is None else transform,
+        ppc,
+        targets_patient,
+        np.asarray(markers_image, float),
+        (fle, fle_mm is not None),
+        residuals,
+        index,
+        probe_noise_mm,
+    )
+    warnings = list(alarms) + warnings
     tre = errors = predicted = predicted_fused = None
     if targets_patient is not None:
         errors = target_errors(transform, targets_patient, targets_image)
@@ -276,7 +308,64 @@ def register(
         pose_covariance=None if fused is None else fused.covariance,
         covariance_centre_mm=None if fused is None else fused.centre_mm,
         predicted_tre_mm=predicted_fused,
+        alarms=alarms,
+        fine_shift_mm=shift,
     )
+
+
+def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_error, residuals, index, noise_mm):
+    """The checks a result must pass to be used: (the fine step's largest move from the CR in mm or None, alarms).
+
+    The fine step (``fine``, None for the CR alone) must not move a probe point or target from where the CR put it by
+    more than ``_shift_limit_ratio`` times the CR's predicted error there (nor less than ``ALARM_FLOOR_MM``). The
+    probe points must end within ``RESTART_RATIO`` times the surface noise that the probe noise and the IPC's
+    spacing explain (F3 of ``core.fused``) of the IPC, RMS; after the CR alone, within that plus the CR's predicted
+    error (the same ratio times its RMS over the probe points); never less than ``ALARM_FLOOR_MM``.
+    ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE).
+    """
+    fle, fle_given = marker_error
+    points = ppc if targets_patient is None else np.vstack((ppc, targets_patient))
+    at_cr = apply_transform(coarse, points)
+    expected = predicted_tre(markers_image, at_cr, fle)
+    ratio = _shift_limit_ratio(len(markers_image), fle_given)
+    alarms, largest = [], None
+    if fine is not None:
+        moves = np.linalg.norm(apply_transform(fine, points) - at_cr, axis=1)
+        limits = np.maximum(ratio * expected, ALARM_FLOOR_MM)
+        largest, worst = float(moves.max()), int(np.argmax(moves / limits))
+        if moves[worst] > limits[worst]:
+            which = f"probe point {worst}" if worst < len(ppc) else f"target {worst - len(ppc)}"
+            alarms.append(
+                f"{method} moved {which} {moves[worst]:.1f} mm from where the CR put it, more than the marker error "
+                f"can explain (the CR's predicted error there is {expected[worst]:.2f} mm RMS for FLE {fle:.2f} mm; "
+                f"limit {limits[worst]:.1f} mm, p < {ALARM_P:g}): the probe points and the markers disagree. Either "
+                "the fine step slid to another fit of the probe points to the IPC (an IPC that is not this bone's "
+                "surface, probe points not touched on it) or the marker centres are further off than their spread "
+                "shows; check both before using this result."
+            )
+    typical = float(np.median(residuals))  # the median: one point touched off the bone is an outlier warning
+    limit = RESTART_RATIO * surface_sigma(noise_mm, index.spacing_mm)
+    if fine is None:
+        limit += ratio * float(np.median(expected[: len(ppc)]))
+    limit = max(limit, ALARM_FLOOR_MM)
+    if typical > limit:
+        explained = "the probe noise and the IPC's point spacing" + (" and the CR's error" if fine is None else "")
+        alarms.append(
+            f"After {method} half the probe points lie more than {typical:.1f} mm from the IPC, far more than "
+            f"{explained} explain (limit {limit:.1f} mm): the registration has not found the bone's surface. Do not "
+            "use this result: check that the IPC is this bone's surface and the probe points were touched on it."
+        )
+    return largest, tuple(alarms)
+
+
+@lru_cache(maxsize=None)
+def _shift_limit_ratio(marker_count, fle_given):
+    """How many times the CR's predicted RMS error a fine step may move a point before it is doubted (``ALARM_P``)."""
+    from scipy import stats  # here, not at the top: the command line's --help must not wait for scipy.stats
+
+    if fle_given:
+        return float(np.sqrt(stats.chi2.ppf(1.0 - ALARM_P, 1)))
+    return float(np.sqrt(stats.f.ppf(1.0 - ALARM_P, 1, 3 * marker_count - 6)))
 
 
 def _fused(index, ppc, coarse, markers_patient, markers_image, fle_mm, probe_noise_mm):
@@ -305,6 +394,8 @@ def _fused_warnings(fused, coarse, markers_patient, markers_image):
     ``p`` (the pose parameters the probe points fix) and ``3K - 6`` degrees of freedom; the CR's own residuals
     count for at least the FLE floor's.
     """
+    from scipy import stats  # here, not at the top: the command line's --help must not wait for scipy.stats
+
     warnings = []
     weights = fused.weights
     count = len(markers_patient)

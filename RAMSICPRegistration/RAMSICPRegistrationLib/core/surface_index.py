@@ -4,7 +4,6 @@ import logging
 from functools import cached_property
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .validation import as_points
 
@@ -22,6 +21,9 @@ class SurfaceIndex:
     """
 
     def __init__(self, points, name="IPC"):
+        from scipy.spatial import cKDTree  # here, not at the top: the command line's --help must not wait for scipy
+
+        self.name = name
         self.points = as_points(points, name, min_count=3)
         # An unbalanced tree without compacted nodes builds about twice as fast and answers as fast here.
         self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
@@ -44,6 +46,35 @@ class SurfaceIndex:
         sample = self.points[:: max(1, len(self.points) // 20000)]
         distances, _ = self.tree.query(sample, k=2)
         return float(np.median(distances[:, 1]))
+
+    def check_covers(self, points, name="probe points"):
+        """Raise ValueError unless the IPC samples the surface finely enough for the (N, 3) ``points`` (mm).
+
+        An IPC must be a surface: to fit the surface under the probe points (their normals, eq. 9's closest
+        points) the patch the points span must hold at least ``NORMAL_NEIGHBOURS`` IPC points, the neighbourhood
+        one surface normal is estimated from. The patch is the points' extent along their two principal axes,
+        ``a x b`` mm; an IPC whose median nearest-neighbour spacing is ``h`` holds about
+        ``a b ln 2 / (pi h^2)`` points there (randomly placed surface points, for which that median spacing means a
+        density of ``ln 2 / (pi h^2)``; a regular grid holds up to 4.5 times more, so the bound is on the safe
+        side). The test needs no pose, so it runs before any registration.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        centred = points - points.mean(axis=0)
+        axes = np.linalg.svd(centred, full_matrices=False)[2][:2]
+        along, across = np.ptp(centred @ axes.T, axis=0)
+        needed = NORMAL_NEIGHBOURS
+        expected = along * across * np.log(2.0) / (np.pi * self.spacing_mm**2) if len(self) > 1 else 0.0
+        if len(self) >= needed and expected >= needed:
+            return
+        widest = np.sqrt(along * across * np.log(2.0) / (np.pi * needed))
+        raise ValueError(
+            f"{self.name}: {len(self):,} points "
+            + (f"{self.spacing_mm:.1f} mm apart (median) " if len(self) > 1 else "")
+            + f"cannot be the surface under the {len(points)} {name}, which span {along:.0f} x {across:.0f} mm: "
+            f"about {expected:.0f} IPC points lie there, and fitting the surface needs at least {needed} (the "
+            f"neighbourhood of one surface normal). Give the bone's surface (ramsicp ipc writes it), with points "
+            f"at most {widest:.1f} mm apart"
+        )
 
     def nearest(self, query):
         """Closest IPC point to each (N, 3) query point: returns distances (N,) in mm and indices (N,)."""

@@ -4,12 +4,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .icp import DEFAULT_MAX_ITERATIONS, DEFAULT_MIN_RADIUS_MM, DEFAULT_TOLERANCE_MM, MatchingRanges, ramsicp
+from .icp import DEFAULT_MAX_ITERATIONS, DEFAULT_MIN_RADIUS_MM, DEFAULT_TOLERANCE_MM, MAX_SCALE, MatchingRanges, ramsicp
 from .metrics import target_registration_error
 from .transforms import apply_transform
 
 #: The paper's sweep: L = 1.0, 1.2, ..., 5.0 (21 values).
 PAPER_SCALES = tuple(np.round(np.linspace(1.0, 5.0, 21), 6))
+#: Most L values one sweep runs (one RAMSICP run each, about 1 ms; README, "Speed"): five times the paper's 21,
+#: e.g. 1 to 5 step 0.04.
+MAX_SCALES = 101
 
 
 @dataclass(frozen=True)
@@ -31,10 +34,22 @@ class SweepEntry:
 
 
 def make_scales(start=1.0, stop=5.0, step=0.2):
-    """The L values ``start, start + step, ..., stop`` (inclusive), rounded to 1e-6 to keep 1.2 exact."""
-    if not (np.isfinite([start, stop, step]).all() and step > 0 and stop >= start >= 1.0):
-        raise ValueError(f"scale range {start}..{stop} step {step}: need 1 <= start <= stop and step > 0")
+    """The L values ``start, start + step, ..., stop`` (inclusive), rounded to 1e-6 to keep 1.2 exact.
+
+    Raises ValueError unless ``1 <= start <= stop <= MAX_SCALE``, ``step > 0`` and the range holds at most
+    ``MAX_SCALES`` values.
+    """
+    if not (np.isfinite([start, stop, step]).all() and step > 0 and MAX_SCALE >= stop >= start >= 1.0):
+        raise ValueError(
+            f"scale range {start:g} to {stop:g} step {step:g}: need 1 <= start <= stop <= {MAX_SCALE:g}, a step above "
+            f"0 and at most {MAX_SCALES} values of L (the paper's sweep, 1 5 0.2, has 21)"
+        )
     count = int(np.floor((stop - start) / step + 1e-9)) + 1
+    if count > MAX_SCALES:
+        raise ValueError(
+            f"scale range {start:g} to {stop:g} step {step:g}: {count:,} values of L, but a sweep runs at most "
+            f"{MAX_SCALES} (the paper's, 1 5 0.2, runs 21); give a larger step"
+        )
     return tuple(np.round(start + step * np.arange(count), 6))
 
 

@@ -162,6 +162,10 @@ def run_demo(
     """
     if trials < 1:
         raise ValueError(f"trials = {trials}: run at least 1 trial")
+    if screenshot is not None:
+        from ..navigation.scene_render import check_writable_png
+
+        check_writable_png(screenshot)  # before the work, not after it
     if image_source not in ("ct", "mesh"):
         raise ValueError(f"image source {image_source!r}: use 'ct' or 'mesh'")
     report = progress or (lambda step, done, total: None)

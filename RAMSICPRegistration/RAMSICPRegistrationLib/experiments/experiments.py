@@ -22,12 +22,11 @@ from ..core.surface_index import SurfaceIndex
 from ..simulation.package_data import bone_mesh, shipped_patient
 from ..simulation.virtual_patient import VirtualPatient
 from .demo import ct_image_side
+from .design import DEFAULT_SUBJECTS, DEFAULT_TRIALS, EXPERIMENTS, SUBJECT_BONES
 from .trials import evaluate_trial
 
 logger = logging.getLogger(__name__)
 
-EXPERIMENTS = ("fig7", "fig8", "fig9", "fig10a", "fig10b")
-SUBJECT_BONES = ("right-tibia", "right-ilium", "left-tibia", "right-fibula")
 TARGET_FREE = "rms-plateau"
 FUSED = "cr-fused"
 
@@ -58,9 +57,6 @@ FIG7_COMBINATIONS = {
     "Comb. 3 (SA1, 3, 5, 7)": (1, 3, 5, 7),
 }
 FIG9_LEVELS_MM = tuple(np.round(np.arange(1.0, 5.01, 0.5), 2))
-#: Repetitions per condition and bone (the paper's), and per subject for Fig. 8 (4 subjects x 4 = 16 per bone).
-DEFAULT_TRIALS = {"fig7": 10, "fig8": 4, "fig9": 5, "fig10a": 10, "fig10b": 10}
-DEFAULT_SUBJECTS = 16
 
 
 @dataclass(frozen=True)

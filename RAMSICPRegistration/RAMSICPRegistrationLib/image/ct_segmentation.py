@@ -15,12 +15,11 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.vtk_arrays import image_data, triangle_arrays
-from .metal import METAL_HU, find_metal_zone
+from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
+from .metal import find_metal_zone
 
 logger = logging.getLogger(__name__)
 
-#: Default bone threshold (HU): above fat, marrow and soft tissue, below cancellous bone.
-DEFAULT_THRESHOLD_HU = 200.0
 #: Gaussian denoising before the threshold (mm): about half the paper's pixel.
 DEFAULT_DENOISE_SIGMA_MM = 0.3
 #: The half-maximum bone surface needs voxels that resolve the cortex (mm).

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-#: Brighter than any bone (HU, after denoising): metal.
-METAL_HU = 2500.0
+from .hounsfield import METAL_HU
+
 #: The metal's blooming and edge: surface within this of it (mm, and at least 2 voxels) is left out.
 METAL_MARGIN_MM = 3.0
 #: In the metal's own slices, surface within this of it (mm) is left out (streaks).

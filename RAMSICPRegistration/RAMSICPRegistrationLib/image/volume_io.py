@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.point_files import PointFileError
+from ..io.file_checks import PointFileError, check_input_file
 
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 VOLUME_SUFFIXES = (".nrrd", ".nhdr", ".nii", ".nii.gz")
@@ -98,7 +98,7 @@ def load_volume(source):
     scalar volume node.
 
     Raises:
-        PointFileError: a file that is missing, of unknown type or unreadable (names the file and the problem).
+        PointFileError: a file that is missing, empty, of unknown type or unreadable (names the file and the problem).
         ValueError: a volume that is not 3-D, is empty, or has a zero spacing.
     """
     if hasattr(source, "IsA"):  # a VTK object: it must be a scalar volume node
@@ -107,8 +107,7 @@ def load_volume(source):
     if path.is_dir():
         voxels, ijk_to_ras = _read_dicom_series(path)
         return check_volume(voxels, ijk_to_ras, name=str(path))
-    if not path.is_file():
-        raise PointFileError(path, "no such file")
+    check_input_file(path, "CT volume")
     name = path.name.lower()
     try:
         if name.endswith((".nrrd", ".nhdr")):
@@ -120,7 +119,8 @@ def load_volume(source):
     except PointFileError:
         raise
     except Exception as error:  # the readers raise many types for a damaged file
-        raise PointFileError(path, f"cannot read as a volume ({type(error).__name__}: {error})") from None
+        detail = " ".join(str(error).split()) or "it ends early or is damaged"
+        raise PointFileError(path, f"cannot read as a volume ({detail}); export the CT again") from None
     try:
         return check_volume(voxels, ijk_to_ras, name=str(path))
     except ValueError as error:
@@ -209,7 +209,11 @@ def _read_dicom_series(folder):
         if "ImagePositionPatient" in header and "ImageOrientationPatient" in header:
             headers.append((path, header))
     if not headers:
-        raise PointFileError(folder, "no DICOM image with a position and orientation in this folder")
+        raise PointFileError(
+            folder,
+            "no DICOM image with a position and orientation in this folder; give a CT file "
+            f"({', '.join(VOLUME_SUFFIXES)}) or a folder holding one DICOM series",
+        )
     series = {}
     for path, header in headers:
         series.setdefault(str(header.get("SeriesInstanceUID", "")), []).append((path, header))

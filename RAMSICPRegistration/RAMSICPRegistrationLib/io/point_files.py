@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.validation import as_points
+from .file_checks import PointFileError, check_input_file
 
 SPACES = ("RAS", "LPS")
 _RAS_FROM_LPS = np.array([-1.0, -1.0, 1.0])
@@ -24,15 +25,6 @@ MARKUPS_SCHEMA = (
     "markups-schema-v1.0.3.json#"
 )
 POINT_SUFFIXES = (".mrk.json", ".json", ".fcsv", ".csv", ".txt", ".npy")
-
-
-class PointFileError(ValueError):
-    """A point or surface file that cannot be read or written; the message names the file and the problem."""
-
-    def __init__(self, path, problem):
-        super().__init__(f"{path}: {problem}")
-        self.path = str(path)
-        self.problem = problem
 
 
 @dataclass(frozen=True)
@@ -56,12 +48,10 @@ def read_points(path, untagged_space="RAS"):
     """Read a point set, returning a PointSet in RAS.
 
     Raises:
-        PointFileError: the file is missing, of an unknown type, malformed, or holds no points.
+        PointFileError: the file is missing, a folder, empty, of an unknown type, malformed, or holds no points.
     """
-    path = Path(path)
     untagged_space = _check_space(untagged_space)
-    if not path.is_file():
-        raise PointFileError(path, "no such file")
+    path = check_input_file(path, "point file")
     suffix = _suffix(path)
     readers = {
         ".mrk.json": _read_markups_json,

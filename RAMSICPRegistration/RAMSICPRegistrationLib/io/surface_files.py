@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .point_files import POINT_SUFFIXES, PointFileError, _check_space, _suffix, read_points, to_ras
+from .file_checks import PointFileError, check_input_file
+from .point_files import POINT_SUFFIXES, _check_space, _suffix, read_points, to_ras
 from .vtk_arrays import poly_data
 
 SURFACE_SUFFIXES = (".vtk", ".vtp", ".stl", ".ply", ".obj")
@@ -31,15 +32,13 @@ def read_surface_mesh(path, untagged_space="RAS"):
     Polygons are triangulated; a file with vertices but no polygons gives an empty (0, 3) triangle array.
 
     Raises:
-        PointFileError: missing file, unknown type, unreadable or empty file.
+        PointFileError: a missing or empty file, a folder, an unknown type, an unreadable file or one without points.
     """
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkFiltersCore import vtkTriangleFilter
 
-    path = Path(path)
     untagged_space = _check_space(untagged_space)
-    if not path.is_file():
-        raise PointFileError(path, "no such file")
+    path = check_input_file(path, "surface file")
     suffix = _suffix(path)
     if suffix not in SURFACE_SUFFIXES:
         raise PointFileError(path, f"unknown surface type; use one of {', '.join(SURFACE_SUFFIXES)}")

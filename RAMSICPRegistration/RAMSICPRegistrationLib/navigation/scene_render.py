@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.file_checks import check_output_file
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from ..io.vtk_arrays import poly_data
 
@@ -30,16 +31,8 @@ def use_offscreen_rendering():
 
 
 def check_writable_png(path):
-    """Raise OSError naming the problem when ``path`` cannot receive a PNG (checked before any work)."""
-    path = Path(path)
-    if path.is_dir():
-        raise OSError(f"{path} is a folder; give a file name ending in .png")
-    if path.suffix.lower() != ".png":
-        raise OSError(f"{path}: a screenshot is a PNG file; give a name ending in .png")
-    if not path.parent.is_dir():
-        raise OSError(f"{path}: the folder {path.parent} does not exist")
-    if not os.access(path.parent, os.W_OK):
-        raise OSError(f"{path}: the folder {path.parent} is not writable")
+    """Raise ValueError naming the problem when ``path`` cannot receive a PNG (checked before any work)."""
+    check_output_file(path, "screenshot", (".png",))
 
 
 def render_registration(
@@ -66,7 +59,7 @@ def render_registration(
         view_direction: from the scene's centre towards the camera (RAS); the default looks from antero-medial.
 
     Raises:
-        OSError: the PNG could not be written (checked before rendering, and after writing).
+        ValueError: the PNG cannot be written (checked before rendering); OSError: writing it failed.
     """
     check_writable_png(path)
     use_offscreen_rendering()

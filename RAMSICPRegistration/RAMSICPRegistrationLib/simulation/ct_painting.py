@@ -16,7 +16,6 @@ the metal; inside the metal it is not added.
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from ..core.transforms import apply_transform
 from ..image.volume_io import CTVolume
@@ -311,6 +310,8 @@ def add_metal_streaks(volume, box, metal_fraction, towards=None, count=STREAK_CO
 def scan(volume, noise_hu, seed):
     """The scanner: Gaussian blur (``PSF_SIGMA_MM``) and Gaussian noise (``noise_hu``), stored as int16 HU."""
     check_noise(noise_hu)
+    from scipy import ndimage  # here, not at the top: the command line's --help lists BODY_MATERIALS
+
     blurred = ndimage.gaussian_filter(volume.voxels, PSF_SIGMA_MM / volume.spacing, truncate=3.0)
     noise = np.random.default_rng(seed).normal(scale=noise_hu, size=blurred.shape).astype(np.float32)
     voxels = np.clip(np.round(blurred + noise), -32768, 32767).astype(np.int16)

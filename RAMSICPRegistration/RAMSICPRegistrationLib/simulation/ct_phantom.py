@@ -255,12 +255,12 @@ def write_phantom(directory, volume, truth):
     from pathlib import Path
 
     from ..image.volume_io import save_nrrd
+    from ..io.file_checks import check_output_folder
     from ..io.point_files import write_points
     from ..io.surface_files import write_surface
 
     directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise ValueError(f"{directory} is a file; give a folder for the phantom's files")
+    check_output_folder(directory, "phantom folder")
     directory.mkdir(parents=True, exist_ok=True)
     paths = {
         "ct": directory / "ct.nrrd",
