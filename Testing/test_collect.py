@@ -109,7 +109,7 @@ def test_the_real_water_tank_recording_holds_one_still_stylus(tmp_path):
         (["--hold-still-s", "-1"], "hold-still time -1.0 s: give a finite number >= 0"),
         (["--out", "{folder}"], "is a folder; give a file name"),
         (["--out", "{folder}/no/points.csv"], "does not exist"),
-        (["--out", "{folder}/points.vtk"], "use one of"),
+        (["--out", "{folder}/points.vtk"], "give a file name ending in .mrk.json"),
         (["--hold-still-mm", "0.01"], "no touch found (the tip never stayed within 0.01 mm for 0.5 s)"),
     ],
 )

@@ -4,7 +4,7 @@ Plain Python, the Slicer Python console and the ``ramsicp`` command line all use
 
     from RAMSICPRegistrationLib import SurfaceIndex, read_points, read_surface_points, register
     ipc = read_surface_points("bone.vtp")            # (M, 3) image points, RAS mm
-    ppc = read_points("probe_points.mrk.json")      # (N, 3) probe points in reference coordinates
+    ppc = read_points("probe_points.mrk.json").points  # (N, 3) probe points in reference coordinates
     result = register(SurfaceIndex(ipc), ppc, markers_image, markers_patient, method="cr-ramsicp", sweep=True)
     result.reference_to_image  # (4, 4) ReferenceToImage, the paper's eq. 10
 
@@ -56,6 +56,10 @@ _EXPORTS = {
     "register": "core.registration",
     "select_scale": "core.registration",
     "SurfaceIndex": "core.surface_index",
+    "FusedWeights": "core.fused",
+    "fused_fit": "core.fused",
+    "marker_fle": "core.fused",
+    "surface_sigma": "core.fused",
     "PAPER_SCALES": "core.sweep",
     "SweepEntry": "core.sweep",
     "make_scales": "core.sweep",

@@ -38,8 +38,10 @@ EXIT_ALARM = 4
 
 def main(argv=None):
     """Entry point of the console script; returns the process exit code."""
-    parser = _parser()
-    arguments = parser.parse_args(argv)
+    try:
+        arguments = _parser().parse_args(argv)
+    except SystemExit as stop:  # --help, --version, or an argument error already said in one line
+        return stop.code
     logging.basicConfig(
         level=logging.DEBUG if arguments.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )
@@ -124,7 +126,11 @@ def _threshold(text):
 
 def _parser():
     parser = _Parser(
-        prog="ramsicp", description="CR-RAMSICP patient-to-image registration for robot-assisted long-bone osteotomy."
+        prog="ramsicp",
+        description="CR-RAMSICP patient-to-image registration for robot-assisted long-bone osteotomy.",
+        epilog=f"Exit codes: 0 done; {EXIT_BAD_INPUT} bad input (one line, before any work); "
+        f"{EXIT_TOO_FEW_MARKERS} ipc --markers: fewer usable marker centres than the tool has (files written); "
+        f"{EXIT_ALARM} register: the result failed a check (printed and written, led by WARNING lines).",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log what happens")
@@ -185,6 +191,7 @@ def _parser():
     )
     reg.add_argument(
         "--untagged-space",
+        type=str.upper,
         choices=("RAS", "LPS"),
         default="RAS",
         help="frame of files that do not state one (default RAS)",
@@ -214,8 +221,8 @@ def _parser():
         "--live",
         action="store_true",
         help="play one trial through the whole tracking chain: Vega simulator -> NDI driver -> "
-        "OpenIGTLink server -> receiver (MRML) -> point collection -> cr-fused; needs the [live] extra "
-        "(pip install 'ramsicp-navigator[live]': slicer-core, Python >= 3.10)",
+        "OpenIGTLink server -> receiver (MRML) -> point collection -> cr-fused; needs the package's [live] extra "
+        "(slicer-core, Python >= 3.10)",
     )
     demo.add_argument(
         "--record",
@@ -240,15 +247,15 @@ def _parser():
     collect.add_argument(
         "--tip", type=_FINITE, nargs=3, required=True, metavar=("X", "Y", "Z"), help="the tip in the tool's frame (mm)"
     )
-    collect.add_argument(
+    collect.add_argument(  # HoldStillDetector checks both settings before any work
         "--hold-still-mm",
-        type=_POSITIVE_MM,
+        type=float,
         default=DEFAULT_STILL_MM,
         help=f"radius the tip stays within during a touch (default {DEFAULT_STILL_MM:g} mm)",
     )
     collect.add_argument(
         "--hold-still-s",
-        type=_number(float, lambda value: value > 0, "give a positive number of seconds"),
+        type=float,
         default=DEFAULT_STILL_S,
         help=f"shortest touch (default {DEFAULT_STILL_S:g} s)",
     )
@@ -296,6 +303,7 @@ def _parser():
     ipc.add_argument("--json", type=Path, help="write counts, thresholds, spheres and timings as JSON")
     ipc.set_defaults(run=_run_ipc)
 
+    # The phantom's numbers are checked by ReferenceBodyModel, rotated_direction and make_ct_phantom before any work.
     phantom = commands.add_parser(
         "phantom",
         help="write a CT phantom (NRRD) of a shipped bone with its ground truth",
@@ -306,12 +314,7 @@ def _parser():
     phantom.add_argument("--out", type=Path, required=True, help="folder for the phantom's files")
     phantom.add_argument("--bone", choices=tuple(BONES), default="right-tibia")
     phantom.add_argument("--seed", type=_SEED, default=0)
-    phantom.add_argument(
-        "--noise",
-        type=_number(float, lambda value: value >= 0, "give a noise of 0 HU or more"),
-        default=25.0,
-        help="image noise, HU (default 25; low dose: 40-60)",
-    )
+    phantom.add_argument("--noise", type=float, default=25.0, help="image noise, HU (default 25; low dose: 40-60)")
     marker = {"type": int, "choices": range(1, 5), "metavar": "N"}
     phantom.add_argument("--partial", **marker, help="make marker N (1-4) partial: a cap missing")
     phantom.add_argument("--deformed", **marker, help="make marker N (1-4) deformed: stretched by 20 %%")
@@ -325,10 +328,10 @@ def _parser():
             "dense-polymer (1000 HU) or aluminium (2500 HU): then spheres, posts and frame are one bright object",
         )
         phantom.add_argument(
-            f"--{part}-diameter", type=_POSITIVE_MM, default=default_diameter, help=f"mm (default {default_diameter:g})"
+            f"--{part}-diameter", type=float, default=default_diameter, help=f"mm (default {default_diameter:g})"
         )
     phantom.add_argument(
-        "--post-length", type=_POSITIVE_MM, default=12.0, help="from the sphere's centre to the frame, mm (default 12)"
+        "--post-length", type=float, default=12.0, help="from the sphere's centre to the frame, mm (default 12)"
     )
     phantom.add_argument(
         "--metal",
@@ -338,7 +341,7 @@ def _parser():
     )
     phantom.add_argument(
         "--oblique",
-        type=_FINITE,
+        type=float,
         default=0.0,
         metavar="DEG",
         help="turn the scanner grid by DEG about an oblique axis (a non-identity direction matrix)",
