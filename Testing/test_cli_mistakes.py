@@ -30,7 +30,8 @@ def _assert_one_line(code, err, command, words):
 def no_work(monkeypatch):
     """Every command's first piece of work fails the test if it is reached: the checks must come before it."""
     from OpenIGTLinkBridgeLib import plus_sequence
-    from RAMSICPRegistrationLib.experiments import demo, experiments
+    from RAMSICPRegistrationLib.core import robot, tool_path
+    from RAMSICPRegistrationLib.experiments import cut_trial, demo, experiments
     from RAMSICPRegistrationLib.image import volume_io
     from RAMSICPRegistrationLib.io import surface_files
     from RAMSICPRegistrationLib.simulation import package_data
@@ -45,6 +46,9 @@ def no_work(monkeypatch):
         (surface_files, "read_surface_points"),
         (package_data, "shipped_patient"),
         (plus_sequence, "read_sequence"),
+        (tool_path, "plan_osteotomy"),
+        (robot, "tcp_four_point"),
+        (cut_trial, "run_cut_trial"),
     ):
         monkeypatch.setattr(module, name, work)
 
@@ -82,6 +86,8 @@ FILE_OUTPUTS = [
     ("ipc", ["ct.nrrd"], "--out", ".vtp"),
     ("collect", ["--recording", "r.igs.mha", "--tip", "0", "0", "0", "--out", "OUT"], "--json", ".json"),
     ("collect", ["--recording", "r.igs.mha", "--tip", "0", "0", "0"], "--out", ".csv"),
+    ("plan", ["--ipc", "i.vtp", "--plane", "0", "0", "0", "0", "0", "1"], "--out", ".json"),
+    ("tcp", ["--flange-poses", "poses.json"], "--json", ".json"),
 ]  # fmt: skip
 
 
@@ -108,7 +114,9 @@ def test_every_output_file_is_checked_before_any_work(
     assert list(tmp_path.glob("ok.*")) == []  # no other output was written either
 
 
-@pytest.mark.parametrize("command, before", [("phantom", []), ("reproduce", ["--experiment", "fig8"])])
+@pytest.mark.parametrize(
+    "command, before", [("phantom", []), ("reproduce", ["--experiment", "fig8"]), ("cut-demo", [])]
+)
 @pytest.mark.parametrize("mistake", ["a file", "unwritable folder", "under a file"])
 def test_every_output_folder_is_checked_before_any_work(
     tmp_path, capsys, no_work, unwritable, command, before, mistake
@@ -142,6 +150,8 @@ def test_every_output_folder_is_checked_before_any_work(
         (["reproduce", "--subjects", "0"], "argument --subjects: '0': give a whole number, 1 or more"),
         (["collect", "--recording", "r.mha", "--tip", "nan", "0", "0", "--out", "p.csv"], "'nan': give a finite"),
         (["demo", "--live", "--json", "d.json"], "the live demo (--live) writes neither"),
+        (["cut-demo", "--seed", "-1"], "argument --seed: '-1': give a whole number, 0 or more"),
+        (["plan", "--ipc", "i.vtp", "--plane", *"000001", "--out", "p.json", "--wedge", "nan"], "'nan': give a finite"),
     ],
 )  # fmt: skip
 def test_numbers_that_make_no_sense_are_one_line(capsys, no_work, argv, words):
@@ -218,3 +228,17 @@ def test_unwritable_fixture_is_really_unwritable(unwritable):
     with pytest.raises(OSError):
         with open(os.path.join(unwritable, "x.txt"), "w") as stream:
             stream.write("x")
+
+
+def test_an_output_never_overwrites_an_input(tmp_path, capsys, no_work):
+    """``ipc ct.nrrd --labelmap ct.nrrd`` would have replaced the CT by its labelmap, ``register --json`` a markups
+    file given as an input (``.mrk.json`` ends in ``.json``)."""
+    ct, markers = tmp_path / "ct.nrrd", tmp_path / "markers.mrk.json"
+    ct.write_bytes(b"NRRD0004\n")
+    markers.write_text("{}")
+    code, _, err = _run(["ipc", ct, "--out", tmp_path / "ipc.vtp", "--labelmap", ct], capsys)
+    _assert_one_line(code, err, "ipc", f"--labelmap {ct}: is an input of this command")
+    others = ["--ipc", "i.vtp", "--ppc", "p.csv", "--markers-patient", "b.fcsv"]
+    code, _, err = _run(["register", *others, "--markers-image", markers, "--json", markers], capsys)
+    _assert_one_line(code, err, "register", "give another name for the output")
+    assert ct.read_bytes() == b"NRRD0004\n" and markers.read_text() == "{}"

@@ -87,7 +87,7 @@ def test_plan_refuses_a_folder_or_a_non_json_output_before_any_work(files, capsy
     assert main([*_plan(files), "--out", str(files)]) == 2
     assert "is a folder" in capsys.readouterr().err
     assert main([*_plan(files), "--out", str(files / "plan.txt")]) == 2
-    assert "use one of .json" in capsys.readouterr().err
+    assert "give a file name ending in .json" in capsys.readouterr().err
 
 
 def test_tcp_from_a_file_of_flange_poses(tmp_path, capsys):

@@ -21,9 +21,10 @@ from .core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
 from .core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from .core.sweep import MAX_SCALES
 from .core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS
+from .core.validation import as_transform
 from .experiments.design import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES
 from .image.hounsfield import DEFAULT_THRESHOLD_HU
-from .io.file_checks import check_output_file, check_output_folder
+from .io.file_checks import check_input_file, check_output_file, check_output_folder
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from .io.point_files import POINT_SUFFIXES
 from .simulation.ct_painting import BODY_MATERIALS
@@ -372,7 +373,9 @@ def _parser():
         help="the direction the blade advances, from its entry side (default: across the bone's narrowest width)",
     )
     plan.add_argument("--extent", type=float, metavar="MM", help="the cut's width across the bone (default: all)")
-    plan.add_argument("--wedge", type=float, default=0.0, metavar="DEG", help="a closing wedge: the second cut's angle")
+    plan.add_argument(
+        "--wedge", type=_FINITE, default=0.0, metavar="DEG", help="a closing wedge: the second cut's angle"
+    )
     plan.add_argument("--tool", choices=TOOLS, default="saw")
     plan.add_argument(
         "--tool-width",
@@ -424,7 +427,7 @@ def _parser():
     )
     cut.add_argument("--bone", choices=tuple(name for name, bone in BONES.items() if bone["anatomy"] == "long-bone"),
                      default="right-tibia")  # fmt: skip
-    cut.add_argument("--seed", type=int, default=0)
+    cut.add_argument("--seed", type=_SEED, default=0)
     cut.add_argument("--speed", type=float, default=20.0, help="the robot's TCP speed, mm/s (default 20)")
     cut.add_argument("--out", type=Path, default=Path("cut"), help="folder for the results (default ./cut)")
     cut.set_defaults(run=_run_cut_demo)
@@ -490,7 +493,9 @@ def _run_register(arguments):
     if (arguments.targets_image is None) != (arguments.targets_patient is None):
         raise ValueError("give --targets-image and --targets-patient together")
     scales = make_scales(*arguments.scales)
-    check_output_file(arguments.json, "--json", (".json",))
+    inputs = (arguments.ipc, arguments.ppc, arguments.markers_image, arguments.markers_patient)
+    inputs += (arguments.targets_image, arguments.targets_patient)
+    check_output_file(arguments.json, "--json", (".json",), inputs)
     clock = time.perf_counter()
     ipc = read_surface_points(arguments.ipc, space)
     ppc = read_points(arguments.ppc, space).points
@@ -779,8 +784,8 @@ def _run_collect(arguments):
     from .io.point_files import write_points
 
     HoldStillDetector(arguments.hold_still_mm, arguments.hold_still_s)  # refuses bad settings before any work
-    check_output_file(arguments.out, "--out", POINT_SUFFIXES)
-    check_output_file(arguments.json, "--json", (".json",))
+    check_output_file(arguments.out, "--out", POINT_SUFFIXES, [arguments.recording])
+    check_output_file(arguments.json, "--json", (".json",), [arguments.recording])
     recording = read_sequence(arguments.recording)
     found = find_recorded_touches(
         recording,
@@ -844,12 +849,12 @@ def _run_ipc(arguments):
     from .io.surface_files import SURFACE_SUFFIXES, write_surface
 
     threshold = arguments.threshold
-    check_output_file(arguments.out, "--out", SURFACE_SUFFIXES + POINT_SUFFIXES)
-    check_output_file(arguments.markers, "--markers")
+    check_output_file(arguments.out, "--out", SURFACE_SUFFIXES + POINT_SUFFIXES, [arguments.ct])
+    check_output_file(arguments.markers, "--markers", inputs=[arguments.ct])
     if arguments.markers is not None:
         check_markers_path(arguments.markers)  # a file that keeps each marker's number and status
-    check_output_file(arguments.labelmap, "--labelmap", (".nrrd",))
-    check_output_file(arguments.json, "--json", (".json",))
+    check_output_file(arguments.labelmap, "--labelmap", (".nrrd",), [arguments.ct])
+    check_output_file(arguments.json, "--json", (".json",), [arguments.ct])
     clock = time.perf_counter()
     volume = load_volume(arguments.ct)
     load_seconds = time.perf_counter() - clock
@@ -1042,7 +1047,7 @@ def _run_plan(arguments):
     from .io.point_files import _suffix, read_points
     from .io.surface_files import SURFACE_SUFFIXES, read_surface_mesh
 
-    check_output_file(arguments.out, "--out", (".json",))
+    check_output_file(arguments.out, "--out", (".json",), [arguments.ipc, arguments.image_to_robot_base])
     image_to_base = None
     if arguments.image_to_robot_base is not None:
         image_to_base = _read_matrix(arguments.image_to_robot_base, "--image-to-robot-base")
@@ -1090,7 +1095,7 @@ def _run_plan(arguments):
 def _run_tcp(arguments):
     from .core.robot import tcp_four_point
 
-    check_output_file(arguments.json, "--json", (".json",))
+    check_output_file(arguments.json, "--json", (".json",), [arguments.flange_poses])
     poses = _read_poses(arguments.flange_poses)
     result = tcp_four_point(poses)
     print(f"flange poses     {len(poses)} from {arguments.flange_poses}")
@@ -1169,8 +1174,6 @@ def _read_matrix(path, option):
         matrix = np.zeros(0)
     if matrix.shape != (4, 4):
         raise ValueError(f"{option} {path}: expected a 4 x 4 matrix (4 rows of 4 numbers), got shape {matrix.shape}")
-    from .core.validation import as_transform
-
     return as_transform(matrix, f"{option} {path}")
 
 
@@ -1191,8 +1194,6 @@ def _read_poses(path):
 
 
 def _read_numbers(path, option):
-    from .io.file_checks import check_input_file
-
     check_input_file(path, f"{option} file")
     text = path.read_text(encoding="utf-8", errors="replace")
     if path.suffix.lower() == ".json":

@@ -317,10 +317,11 @@ def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_er
     """The checks a result must pass to be used: (the fine step's largest move from the CR in mm or None, alarms).
 
     The fine step (``fine``, None for the CR alone) must not move a probe point or target from where the CR put it by
-    more than ``_shift_limit_ratio`` times the CR's predicted error there (nor less than ``ALARM_FLOOR_MM``). The
-    probe points must end within ``RESTART_RATIO`` times the surface noise that the probe noise and the IPC's
-    spacing explain (F3 of ``core.fused``) of the IPC, RMS; after the CR alone, within that plus the CR's predicted
-    error (the same ratio times its RMS over the probe points); never less than ``ALARM_FLOOR_MM``.
+    more than ``_shift_limit_ratio`` times the CR's predicted error there (nor less than ``ALARM_FLOOR_MM``). Half
+    the probe points (the median distance) must end within ``RESTART_RATIO`` times the surface noise that the probe
+    noise and the IPC's spacing explain (F3 of ``core.fused``) of the IPC; after the CR alone, within that plus the
+    CR's predicted error (the same ratio times its median over the probe points); never less than
+    ``ALARM_FLOOR_MM``.
     ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE).
     """
     fle, fle_given = marker_error

@@ -16,7 +16,8 @@ class TrialResult:
         scales: (S,) the sweep's L values; sweep_tre_mm: (S,) RAMSICP's TRE at each.
         chosen: policy -> (L, TRE) for each of ``POLICIES``.
         fused_mm: TRE of cr-fused; fused_predicted_mm: the RMS over the targets of its predicted TRE.
-        fused_warned: cr-fused gave a warning of its own (markers and surface disagree, noisy surface, no settling).
+        fused_warned: cr-fused gave an alarm (``RegistrationResult.alarms``) or a warning of its own (markers and
+            surface disagree, noisy surface, no settling).
     """
 
     cr_mm: float
@@ -58,5 +59,5 @@ def evaluate_trial(index, data, markers_image=None):
         chosen=chosen,
         fused_mm=fused.tre_mm,
         fused_predicted_mm=fused.predicted_tre_rms_mm,
-        fused_warned=any(warning.startswith(FUSED_WARNINGS) for warning in fused.warnings),
+        fused_warned=bool(fused.alarms) or any(warning.startswith(FUSED_WARNINGS) for warning in fused.warnings),
     )

@@ -33,16 +33,20 @@ def check_input_file(path, what="file"):
     return path
 
 
-def check_output_file(path, option, suffixes=None):
+def check_output_file(path, option, suffixes=None, inputs=()):
     """Raise PointFileError unless a file can be written at ``path``; None passes (an output not asked for).
 
-    Checked: the path is not a folder, its name ends with one of ``suffixes`` (any name when None), its folder
+    Checked: the path is not a folder, its name ends with one of ``suffixes`` (any name when None), it is none of
+    the command's ``inputs`` (paths, None ignored: an output never overwrites what the user collected), its folder
     exists and a file can be created in it (tried, then removed). ``option`` (e.g. '--json') starts the message.
     """
     if path is None:
         return
     path = Path(path)
     name = f"{option} {path}"
+    for source in inputs:
+        if source is not None and path.exists() and Path(source).exists() and path.samefile(source):
+            raise PointFileError(name, f"is an input of this command ({source}); give another name for the output")
     if path.is_dir():
         example = f"{path / 'result'}{suffixes[0]}" if suffixes else f"{path / 'result'}"
         raise PointFileError(name, f"is a folder; give a file name, e.g. {example}")
