@@ -48,3 +48,27 @@ def test_render_shows_residual_colours_targets_and_a_scale_bar(tmp_path):
 def test_bad_paths_are_refused_before_rendering(tmp_path, name, words):
     with pytest.raises(ValueError, match=words):
         render_registration(tmp_path / name, SURFACE, None, PROBE, [0.0, 1.0], MARKERS)
+
+
+def test_a_headless_screenshot_says_nothing_about_an_x_server(tmp_path):
+    """Issue 14, item 6: every headless screenshot printed VTK's ``bad X server connection. DISPLAY=``; without a
+    display the picture is rendered through EGL, chosen before VTK's first window, and nothing is printed."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, numpy as np\n"
+        "from RAMSICPRegistrationLib.navigation.scene_render import render_registration\n"
+        "surface = np.random.default_rng(0).normal(size=(500, 3)) * 20.0\n"
+        "render_registration(sys.argv[1], surface, None, surface[:2], [0.0, 1.0], surface[2:5], size=(300, 200))\n"
+    )
+    environment = {key: value for key, value in os.environ.items() if key not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    environment.pop("VTK_DEFAULT_OPENGL_WINDOW", None)
+    path = tmp_path / "headless.png"
+    completed = subprocess.run(
+        [sys.executable, "-c", script, str(path)], capture_output=True, text=True, env=environment, timeout=120
+    )
+    assert completed.returncode == 0, completed.stderr
+    assert "X server" not in completed.stderr and "DISPLAY" not in completed.stderr, completed.stderr
+    assert _pixels(path).shape == (200, 300, 3)
