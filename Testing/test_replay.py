@@ -173,6 +173,8 @@ def _free_port():
         (["--replay", str(CALIBRATION), "--speed", "0"], "replay speed 0.0: give a number above 0"),
         (["--replay", str(CALIBRATION), "--rename", "Needle=Probe"], "the recording has no Needle transform"),
         (["--simulate", "--loop"], "--loop, --speed and --rename only apply to --replay FILE"),
+        ([], "one of the arguments --ndi --serial --simulate --replay is required (see ramsicp-tracker-server --help)"),
+        (["--simulate", "--port", "abc"], "argument --port: invalid int value: 'abc'"),
     ],
 )
 def test_bad_arguments_and_files_give_one_line_and_exit_2_before_anything_starts(tmp_path, arguments, expected):

@@ -309,8 +309,15 @@ EXIT_BAD_INPUT = 2
 MAX_RATE_HZ = 1000.0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a mistake is one line (what is wrong, where to read more), as every other error of the server."""
+
+    def error(self, message):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser():
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ramsicp-tracker-server",
         description="Stream an NDI tracker (or its simulator, or a recorded PLUS sequence file) over OpenIGTLink "
         "as PLUS does: ProbeToTracker and ReferenceToTracker as TRANSFORM messages, the tracker's state as STATUS, "
