@@ -31,6 +31,7 @@ from ..navigation.controller import NavigationController
 from ..navigation.navigation import load_scene
 from .panel_state import panel_state
 from .scene_display import (
+    bone_as_saved,
     follow_tip,
     move_needle,
     quiet_transform_managers,
@@ -263,7 +264,11 @@ class NavigationWebApp:
         tracker that is streaming is never judged stale because this process was late to read it. Returns None:
         trame sends a handler's result to the page, and the page needs none (what happened is in the panel)."""
         self.bridge.poll()
-        self.controller.run(action, *args)
+        if action == "save":
+            with bone_as_saved(self.scene):  # the scene as Slicer will show it: the IPC itself, not its display copy
+                self.controller.run(action, *args)
+        else:
+            self.controller.run(action, *args)
         self.refresh_panel()
 
     def run_after_showing_busy(self, action, *args):
@@ -335,7 +340,7 @@ class NavigationWebApp:
         parameters = self.controller.parameters
         position = self.controller.tip_position()
         if position is not None and self._registered(parameters):
-            follow_tip(self.scene, position)
+            follow_tip(self.scene, position, parameters.ctVolume)
 
     async def _panel_loop(self):
         while True:
