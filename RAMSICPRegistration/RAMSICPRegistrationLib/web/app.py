@@ -49,10 +49,6 @@ PANEL_INTERVAL_S = 0.2
 #: with the encoder and the browser, slices at 30 Hz starve the 3D view (measured: 2 frames/s instead of 15).
 TARGET_FPS = 30.0
 SLICE_FPS = 10.0
-#: JPEG quality of every picture sent. trame-rca's default sends a picture at quality 50 while a view changes and
-#: renders it again at 90 once it has been still for five frames: the slices would look coarser while the probe
-#: moves, and each stop would cost a second render of every view. One quality, one render per change.
-JPEG_QUALITY = 90
 LAYOUT_ID = "RAMSICP navigation"
 #: The browser demo's simulated probe: a 10 s pivot, then each of the 40 touches held for 1.2 s; again and again.
 DEMO_SIMULATOR = {"pivot_s": 10.0, "dwell_s": 1.2, "move_s": 0.4, "loop": True}
@@ -150,25 +146,19 @@ class NavigationWebApp:
         self.slicer = SlicerApp()
         self.scene = self.slicer.scene
         # blur_fps=None: a second screen nobody hovers renders as fast as the focused one.
-        factories = [
-            factory(self.server, populate_view_ui_f=gutter, target_fps=fps, blur_fps=None)
-            for factory, gutter, fps in (
-                (RemoteThreeDViewFactory, three_d_view_gutter, target_fps),
-                (RemoteSliceViewFactory, slice_view_gutter, slice_fps),
+        for factory, gutter, fps in (
+            (RemoteThreeDViewFactory, three_d_view_gutter, target_fps),
+            (RemoteSliceViewFactory, slice_view_gutter, slice_fps),
+        ):
+            self.slicer.view_manager.register_factory(
+                factory(self.server, populate_view_ui_f=gutter, target_fps=fps, blur_fps=None)
             )
-        ]
-        for factory in factories:
-            self.slicer.view_manager.register_factory(factory)
         self.layout = LayoutManager(self.scene, self.slicer.view_manager, self.server)
         self.layout.register_layout(LAYOUT_ID, navigation_layout())
         self.layout.set_layout(LAYOUT_ID)
         for view in self.slicer.view_manager.get_views():
             view.render_window().SetMultiSamples(0)  # 8x multisampling costs 10x on software GL
             quiet_transform_managers(view._displayable_manager_group)  # trame-slicer has no public accessor
-        for factory in factories:
-            for view in factory.get_views():
-                adapter = factory.get_factory_view(view.get_singleton_tag()).view_adapter
-                adapter.update_quality(JPEG_QUALITY, JPEG_QUALITY)
         self.controller = None
         self.bridge = None
         self._tasks = []
