@@ -338,3 +338,165 @@ def test_the_guidance_shows_the_tools_distance_and_angle_and_whether_it_is_on_pl
     on = CutGuidance(0, 1, -0.04, 0.1, 0.5, 0.0, 10.0, 22.5, True, True)
     assert guidance_state(status(on))["guidance"]["distance"] == "+0.0"  # signed, but never "-0.0"
     assert guidance_state(status(on))["guidance"]["on_plan"] and guidance_state(status(None))["guidance"] is None
+
+
+# -- the 3D view's display copy of the IPC, and the slices on the CT's voxel planes --------------------------------
+def sphere_surface(radius_mm, resolution):
+    """A closed triangulated sphere about the origin (vtkPolyData, mm) with about 2 x resolution^2 triangles, every
+    vertex on the sphere."""
+    from vtkmodules.vtkFiltersSources import vtkSphereSource
+
+    source = vtkSphereSource()
+    source.SetRadius(radius_mm)
+    source.SetThetaResolution(resolution)
+    source.SetPhiResolution(resolution)
+    source.Update()
+    return source.GetOutput()
+
+
+def ipc_model(scene, surface):
+    model = scene.AddNewNodeByClass("vtkMRMLModelNode", "IPC")
+    model.SetAndObservePolyData(surface)
+    model.CreateDefaultDisplayNodes()
+    return model
+
+
+@needs_slicer
+def test_surface_deviation_is_the_distance_between_two_parallel_planes_and_two_concentric_spheres():
+    from vtkmodules.vtkCommonTransforms import vtkTransform
+    from vtkmodules.vtkFiltersCore import vtkTriangleFilter
+    from vtkmodules.vtkFiltersGeneral import vtkTransformPolyDataFilter
+    from vtkmodules.vtkFiltersSources import vtkPlaneSource
+
+    from RAMSICPRegistrationLib.web.scene_display import surface_deviation_mm
+
+    plane = vtkPlaneSource()
+    plane.SetOrigin(0.0, 0.0, 0.0)
+    plane.SetPoint1(40.0, 0.0, 0.0)
+    plane.SetPoint2(0.0, 40.0, 0.0)
+    plane.SetResolution(40, 40)
+    triangles = vtkTriangleFilter()
+    triangles.SetInputConnection(plane.GetOutputPort())
+    triangles.Update()
+    shift = vtkTransform()
+    shift.Translate(0.0, 0.0, 0.3)
+    shifted = vtkTransformPolyDataFilter()
+    shifted.SetInputData(triangles.GetOutput())
+    shifted.SetTransform(shift)
+    shifted.Update()
+    assert surface_deviation_mm(shifted.GetOutput(), triangles.GetOutput()) == pytest.approx(0.3, abs=1e-6)
+    # Spheres of 30 and 30.25 mm, 0.25 mm apart; their flat triangles (edges of 0.75 mm) sag by 0.002 mm at most.
+    assert surface_deviation_mm(sphere_surface(30.25, 250), sphere_surface(30.0, 250)) == pytest.approx(0.25, abs=0.005)
+
+
+@needs_slicer
+def test_the_3d_view_draws_a_tenth_of_the_ipc_within_tolerance_and_the_ipc_itself_when_a_copy_would_be_coarse(scene):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    from RAMSICPRegistrationLib.web.scene_display import BONE_DISPLAY_TOLERANCE_MM, update_bone_display
+
+    surface = sphere_surface(30.0, 250)  # 124,000 triangles, edges of 0.75 mm: as dense as an IPC
+    model = ipc_model(scene, surface)
+    copy = update_bone_display(scene, model)
+    assert copy is not None and copy.GetDisplayNode().GetVisibility()
+    assert not model.GetDisplayNode().GetVisibility3D(), "the IPC is drawn once, by its copy"
+    assert copy.GetPolyData().GetNumberOfCells() <= 0.11 * surface.GetNumberOfCells()
+    radii = np.linalg.norm(vtk_to_numpy(copy.GetPolyData().GetPoints().GetData()), axis=1)
+    assert np.abs(radii - 30.0).max() < BONE_DISPLAY_TOLERANCE_MM, "every vertex drawn lies on the bone's surface"
+    assert update_bone_display(scene, model) is copy and copy.GetPolyData() is not None, "made once, not again"
+
+    coarse = ipc_model(scene, sphere_surface(30.0, 12))  # 240 triangles: a tenth of them is a rough polyhedron
+    assert update_bone_display(scene, coarse) is None
+    assert coarse.GetDisplayNode().GetVisibility3D(), "a copy beyond the tolerance is not drawn: the IPC is"
+    assert model.GetDisplayNode().GetVisibility3D(), "the IPC the copy was made from is shown again"
+    assert update_bone_display(scene, None) is None
+    assert scene.GetFirstNodeByName("BoneDisplay") is None
+
+
+@needs_slicer
+def test_a_saved_scene_holds_the_ipc_shown_in_3d_and_no_display_node_of_the_browser_view(tmp_path):
+    from RAMSICPRegistrationLib.web.app import NavigationWebApp
+    from RAMSICPRegistrationLib.web.scene_display import DISPLAY_ATTRIBUTE, bone_as_saved, style_workflow_nodes
+
+    app = NavigationWebApp(tmp_path)
+    app.start_workflow()
+    try:
+        parameters = app.controller.parameters
+        model = ipc_model(app.scene, sphere_surface(30.0, 250))
+        parameters.ipcModel = model
+        style_workflow_nodes(parameters)
+        copy = app.scene.GetFirstNodeByName("BoneDisplay")
+        assert copy is not None and not model.GetDisplayNode().GetVisibility3D()
+        with bone_as_saved(app.scene):
+            assert model.GetDisplayNode().GetVisibility3D(), "while the scene is written, the IPC is shown"
+        assert not model.GetDisplayNode().GetVisibility3D()
+        path = tmp_path / "saved" / "navigation.mrml"
+        app.run("save", path)
+        assert not model.GetDisplayNode().GetVisibility3D() and copy.GetDisplayNode().GetVisibility()
+    finally:
+        app.close()
+    text = path.read_text()
+    assert DISPLAY_ATTRIBUTE not in text and "BoneDisplay" not in text, "the view's own nodes are never saved"
+    assert [file.name for file in path.parent.glob("*.vtk")] == [f"IPC-{model.GetID()}.vtk"], "one model: the IPC"
+    archive = tmp_path / "saved.mrb"
+    with zipfile.ZipFile(archive, "w") as mrb:
+        for file in path.parent.iterdir():
+            mrb.write(file, f"saved/{file.name}")
+    reader = NavigationWebApp(tmp_path / "out")
+    reader.load_scene(archive)  # as Slicer opens it: before this view styles anything
+    loaded = reader.scene.GetFirstNodeByName("IPC")
+    assert loaded.GetPolyData().GetNumberOfCells() == model.GetPolyData().GetNumberOfCells()
+    assert loaded.GetDisplayNode().GetVisibility() and loaded.GetDisplayNode().GetVisibility3D(), "Slicer shows it"
+    assert reader.scene.GetFirstNodeByName("BoneDisplay") is None
+    nodes = [reader.scene.GetNthNode(index) for index in range(reader.scene.GetNumberOfNodes())]
+    assert not [node.GetName() for node in nodes if node.GetAttribute(DISPLAY_ATTRIBUTE) is not None]
+    reader.close()
+
+
+def slice_node(scene, name, normal_column):
+    """A slice node whose plane is normal to RAS axis ``normal_column`` (0 R, 1 A, 2 S), at the origin."""
+    import slicer
+
+    node = slicer.vtkMRMLSliceNode()
+    node.SetName(name)
+    node.SetLayoutName(name)
+    scene.AddNode(node)
+    in_plane = [axis for axis in range(3) if axis != normal_column]
+    slice_to_ras = node.GetSliceToRAS()
+    for column, axis in enumerate([*in_plane, normal_column]):
+        for row in range(3):
+            slice_to_ras.SetElement(row, column, 1.0 if row == axis else 0.0)
+        slice_to_ras.SetElement(axis, 3, 0.0)
+    node.UpdateMatrices()
+    return node
+
+
+def slice_origins(nodes):
+    return np.array([[node.GetSliceToRAS().GetElement(row, 3) for row in range(3)] for node in nodes])
+
+
+@needs_slicer
+def test_the_slices_follow_the_tip_on_the_cts_voxel_planes_and_stay_while_it_moves_within_a_voxel(scene):
+    from vtkmodules.vtkCommonCore import vtkCommand
+
+    from RAMSICPRegistrationLib.web.scene_display import follow_tip
+
+    sagittal, coronal, axial = (slice_node(scene, name, axis) for axis, name in enumerate(("S", "C", "A")))
+    ct = scene.AddNewNodeByClass("vtkMRMLScalarVolumeNode", "CT")
+    ct.SetSpacing(0.5, 0.8, 1.25)  # voxel centres at R = 10 + 0.5 i, A = 20 + 0.8 j, S = 30 + 1.25 k
+    ct.SetOrigin(10.0, 20.0, 30.0)
+    assert follow_tip(scene, (10.3, 20.5, 31.0), ct) == 3
+    # i = 0.6 -> 1, j = 0.625 -> 1, k = 0.8 -> 1: R 10.5 (sagittal), A 20.8 (coronal), S 31.25 (axial).
+    origins = slice_origins((sagittal, coronal, axial))
+    np.testing.assert_allclose([origins[0, 0], origins[1, 1], origins[2, 2]], (10.5, 20.8, 31.25), atol=1e-9)
+    changes = []
+    for node in (sagittal, coronal, axial):
+        node.AddObserver(vtkCommand.ModifiedEvent, lambda *_: changes.append(1))
+    assert follow_tip(scene, (10.45, 20.9, 31.5), ct) == 0, "i 0.9, j 1.125, k 1.2: the same voxel planes"
+    assert not changes, "a slice that stays is not cut again"
+    assert follow_tip(scene, (10.8, 20.9, 31.5), ct) == 1  # i = 1.6 -> 2: only the sagittal slice moves
+    assert sagittal.GetSliceToRAS().GetElement(0, 3) == pytest.approx(11.0, abs=1e-9)
+    transform = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "CTMoved")
+    ct.SetAndObserveTransformNodeID(transform.GetID())
+    follow_tip(scene, (10.3, 20.5, 31.0), ct)  # a CT under a transform: exactly through the tip
+    np.testing.assert_allclose(np.diag(slice_origins((sagittal, coronal, axial))), (10.3, 20.5, 31.0), atol=1e-9)

@@ -31,6 +31,7 @@ from ..navigation.controller import NavigationController
 from ..navigation.navigation import load_scene
 from .panel_state import panel_state
 from .scene_display import (
+    bone_as_saved,
     follow_tip,
     move_needle,
     quiet_transform_managers,
@@ -48,6 +49,11 @@ PANEL_INTERVAL_S = 0.2
 #: with the encoder and the browser, slices at 30 Hz starve the 3D view (measured: 2 frames/s instead of 15).
 TARGET_FPS = 30.0
 SLICE_FPS = 10.0
+#: Threads of VTK's threaded image filters (vtkMultiThreader, which the slices' reslicing of the CT uses), for the
+#: whole server process. VTK's default is one per core; on two cores shared with the encoder, the tracker and the
+#: browser, one thread gives the 3D view more distinct frames per second (benchmarks/bench_web_view.py, medians of
+#: 3 and 4 runs: 16.9 instead of 14.4 with the IPC's display copy, JPEG at quality 90).
+VTK_FILTER_THREADS = 1
 LAYOUT_ID = "RAMSICP navigation"
 #: The browser demo's simulated probe: a 10 s pivot, then each of the 40 touches held for 1.2 s; again and again.
 DEMO_SIMULATOR = {"pivot_s": 10.0, "dwell_s": 1.2, "move_s": 0.4, "loop": True}
@@ -263,7 +269,11 @@ class NavigationWebApp:
         tracker that is streaming is never judged stale because this process was late to read it. Returns None:
         trame sends a handler's result to the page, and the page needs none (what happened is in the panel)."""
         self.bridge.poll()
-        self.controller.run(action, *args)
+        if action == "save":
+            with bone_as_saved(self.scene):  # the scene as Slicer will show it: the IPC itself, not its display copy
+                self.controller.run(action, *args)
+        else:
+            self.controller.run(action, *args)
         self.refresh_panel()
 
     def run_after_showing_busy(self, action, *args):
@@ -335,7 +345,7 @@ class NavigationWebApp:
         parameters = self.controller.parameters
         position = self.controller.tip_position()
         if position is not None and self._registered(parameters):
-            follow_tip(self.scene, position)
+            follow_tip(self.scene, position, parameters.ctVolume)
 
     async def _panel_loop(self):
         while True:
@@ -349,6 +359,9 @@ class NavigationWebApp:
         """Serve the page until the server stops (Ctrl+C); ``on_ready(url)`` once it listens."""
         port = check_port_free(host, port)
         self.build_page()
+        from vtkmodules.vtkCommonCore import vtkMultiThreader
+
+        vtkMultiThreader.SetGlobalMaximumNumberOfThreads(VTK_FILTER_THREADS)
 
         def ready(**_):
             self._tasks += [asyncio.ensure_future(self._poll_loop()), asyncio.ensure_future(self._panel_loop())]
