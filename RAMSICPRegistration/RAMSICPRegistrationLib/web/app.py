@@ -51,8 +51,9 @@ TARGET_FPS = 30.0
 SLICE_FPS = 10.0
 #: Threads of VTK's threaded image filters (vtkMultiThreader, which the slices' reslicing of the CT uses), for the
 #: whole server process. VTK's default is one per core; on two cores shared with the encoder, the tracker and the
-#: browser, one thread gives the 3D view more distinct frames per second (benchmarks/bench_web_view.py, medians of
-#: 3 and 4 runs: 16.9 instead of 14.4 with the IPC's display copy, JPEG at quality 90).
+#: browser, one thread gives the 3D view more distinct frames per second (benchmarks/bench_web_view.py, medians
+#: with the IPC's display copy: 20.1 instead of 18.4 at trame-rca's JPEG defaults, 17.1 instead of 14.4 at quality
+#: 90).
 VTK_FILTER_THREADS = 1
 LAYOUT_ID = "RAMSICP navigation"
 #: The browser demo's simulated probe: a 10 s pivot, then each of the 40 touches held for 1.2 s; again and again.
