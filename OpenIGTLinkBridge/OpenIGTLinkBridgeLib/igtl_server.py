@@ -10,7 +10,6 @@ stops answering is reported by STATUS, with the reason, and reconnected after a 
 ``BACKOFF_MAX_S``. ``--replay`` streams a recorded PLUS sequence file instead (``replay.ReplaySource``).
 """
 
-import argparse
 import errno
 import logging
 import math
@@ -21,6 +20,8 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from RAMSICPRegistrationLib.io.command_line import EXIT_BAD_INPUT, OneLineParser
 
 from . import igtl_messages as igtl
 from .ndi_driver import NDI_PORT, parse_ndi_address
@@ -305,19 +306,11 @@ class TrackerServer(BackgroundServing):
 _IDENTITY = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
 
 
-EXIT_BAD_INPUT = 2
 MAX_RATE_HZ = 1000.0
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a mistake is one line (what is wrong, where to read more), as every other error of the server."""
-
-    def error(self, message):
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def _parser():
-    parser = _Parser(
+    parser = OneLineParser(
         prog="ramsicp-tracker-server",
         description="Stream an NDI tracker (or its simulator, or a recorded PLUS sequence file) over OpenIGTLink "
         "as PLUS does: ProbeToTracker and ReferenceToTracker as TRANSFORM messages, the tracker's state as STATUS, "

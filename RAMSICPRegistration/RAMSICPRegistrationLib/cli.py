@@ -24,13 +24,13 @@ from .core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS
 from .core.validation import as_transform
 from .experiments.design import DEFAULT_SUBJECTS, EXPERIMENTS, SUBJECT_BONES
 from .image.hounsfield import DEFAULT_THRESHOLD_HU
+from .io.command_line import EXIT_BAD_INPUT, OneLineParser
 from .io.file_checks import check_input_file, check_output_file, check_output_folder
 from .io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from .io.point_files import POINT_SUFFIXES
 from .simulation.ct_painting import BODY_MATERIALS
 from .simulation.package_data import BONES
 
-EXIT_BAD_INPUT = 2
 #: ``ramsicp ipc --markers``: every file was written, but fewer marker centres are usable than the tool has.
 EXIT_TOO_FEW_MARKERS = 3
 #: ``ramsicp register``: the result is printed and written, but it failed a check (``RegistrationResult.alarms``).
@@ -92,13 +92,6 @@ class _ReaderMayLeave:
         return getattr(self.stream, name)
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but a mistake is one line (which option, what is wrong), as every other error of the command."""
-
-    def error(self, message):
-        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def _number(kind, test, requirement):
     """An argparse type: ``kind(text)`` that passes ``test``, else one line saying what to give."""
 
@@ -126,7 +119,7 @@ def _threshold(text):
 
 
 def _parser():
-    parser = _Parser(
+    parser = OneLineParser(
         prog="ramsicp",
         description="CR-RAMSICP patient-to-image registration for robot-assisted long-bone osteotomy.",
         epilog=f"Exit codes: 0 done; {EXIT_BAD_INPUT} bad input (one line, before any work); "
