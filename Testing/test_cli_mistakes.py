@@ -151,6 +151,8 @@ def test_every_output_folder_is_checked_before_any_work(
         (["collect", "--recording", "r.mha", "--tip", "nan", "0", "0", "--out", "p.csv"], "'nan': give a finite"),
         (["demo", "--live", "--json", "d.json"], "the live demo (--live) writes neither"),
         (["cut-demo", "--seed", "-1"], "argument --seed: '-1': give a whole number, 0 or more"),
+        (["cut-demo", "--speed", "0"], "argument --speed: '0': give a speed above 0 mm/s"),
+        (["cut-demo", "--speed", "nan"], "argument --speed: 'nan': give a speed above 0 mm/s"),
         (["plan", "--ipc", "i.vtp", "--plane", *"000001", "--out", "p.json", "--wedge", "nan"], "'nan': give a finite"),
     ],
 )  # fmt: skip

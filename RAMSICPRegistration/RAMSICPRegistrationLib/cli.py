@@ -111,6 +111,7 @@ _POSITIVE_MM = _number(float, lambda value: value > 0, "give a positive number o
 _FINITE = _number(float, lambda value: True, "give a finite number")
 _COUNT = _number(int, lambda value: value >= 1, "give a whole number, 1 or more")
 _SEED = _number(int, lambda value: value >= 0, "give a whole number, 0 or more")
+_SPEED = _number(float, lambda value: value > 0, "give a speed above 0 mm/s")
 
 
 def _threshold(text):
@@ -421,7 +422,7 @@ def _parser():
     cut.add_argument("--bone", choices=tuple(name for name, bone in BONES.items() if bone["anatomy"] == "long-bone"),
                      default="right-tibia")  # fmt: skip
     cut.add_argument("--seed", type=_SEED, default=0)
-    cut.add_argument("--speed", type=float, default=20.0, help="the robot's TCP speed, mm/s (default 20)")
+    cut.add_argument("--speed", type=_SPEED, default=20.0, help="the robot's TCP speed, mm/s (default 20)")
     cut.add_argument("--out", type=Path, default=Path("cut"), help="folder for the results (default ./cut)")
     cut.set_defaults(run=_run_cut_demo)
 
@@ -1107,8 +1108,6 @@ def _run_cut_demo(arguments):
     from .navigation.cut_render import render_guidance
 
     check_output_folder(arguments.out, "--out")
-    if not (np.isfinite(arguments.speed) and arguments.speed > 0):
-        raise ValueError(f"--speed {arguments.speed}: give a speed above 0 mm/s")
     arguments.out.mkdir(parents=True, exist_ok=True)
     result = run_cut_trial(arguments.bone, arguments.seed, arguments.speed, progress=_ProgressBar())
     document = result.to_dict()
