@@ -34,6 +34,7 @@ from slicer.ScriptedLoadableModule import (
 )
 from slicer.util import VTKObservationMixin
 
+from OpenIGTLinkBridgeLib.robot_link import RobotLink
 from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from RAMSICPRegistrationLib.core.tool_path import TOOLS
 from RAMSICPRegistrationLib.navigation.controller import Cancelled, NavigationController
@@ -342,7 +343,9 @@ class RAMSICPRegistrationLogic(ScriptedLoadableModuleLogic):
     def __init__(self):
         ScriptedLoadableModuleLogic.__init__(self)
         autosave = os.path.join(slicer.app.temporaryPath, "RAMSICPNavigator-autosave")
-        self.controller = NavigationController(slicer.mrmlScene, autosave_directory=autosave)
+        self.controller = NavigationController(
+            slicer.mrmlScene, autosave_directory=autosave, robot_link_factory=RobotLink
+        )
 
     def getParameterNode(self):
         return RAMSICPRegistrationParameterNode(super().getParameterNode())

@@ -16,6 +16,7 @@ from conftest import CYLINDER_RADIUS_MM as R
 from conftest import cylinder_mesh, headless_scene, random_transform
 
 slicer = pytest.importorskip("slicer", reason="slicer-core (real MRML) needs Python >= 3.10")
+from OpenIGTLinkBridgeLib.robot_link import RobotLink  # noqa: E402
 from OpenIGTLinkBridgeLib.robot_simulator import RobotSimulator  # noqa: E402
 from RAMSICPRegistrationLib.navigation import mrml_nodes  # noqa: E402
 from RAMSICPRegistrationLib.navigation.controller import NavigationController  # noqa: E402
@@ -34,7 +35,7 @@ def planned(clock):
     """A controller with the cylinder as its IPC, a plane at z = 50 (y axis: the blade advances +y), the cut
     planned, and the tracker's nodes in place; ``tracker(tool_tip_to_image)`` streams one frame."""
     scene = headless_scene()
-    controller = NavigationController(scene, clock=lambda: clock["s"])
+    controller = NavigationController(scene, clock=lambda: clock["s"], robot_link_factory=RobotLink)
     parameters = controller.parameters
     vertices, triangles = cylinder_mesh()
     parameters.ipcModel = mrml_nodes.model_node(scene, vertices, triangles)

@@ -144,7 +144,7 @@ def test_a_replayed_recording_reaches_a_cpp_client_in_order_at_the_recorded_rate
     assert len(expected) == 2 * 93 - 9
     port = _free_port()
     server = subprocess.Popen(
-        [sys.executable, "-m", "OpenIGTLinkBridgeLib.igtl_server", "--replay", str(path), "--port", str(port)],
+        [sys.executable, "-m", "OpenIGTLinkBridgeLib.tracker_server", "--replay", str(path), "--port", str(port)],
         stderr=subprocess.PIPE,
         text=True,
     )

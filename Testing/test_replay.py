@@ -145,7 +145,7 @@ def test_a_tracker_that_keeps_failing_is_retried_less_and_less_often_and_says_wh
 
 def _server_command(*arguments, timeout=20):
     return subprocess.run(
-        [sys.executable, "-m", "OpenIGTLinkBridgeLib.igtl_server", *arguments],
+        [sys.executable, "-m", "OpenIGTLinkBridgeLib.tracker_server", *arguments],
         capture_output=True,
         text=True,
         timeout=timeout,

@@ -379,7 +379,7 @@ def test_tracker_server_command_streams_the_simulator(tmp_path):
 
     port = _free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "OpenIGTLinkBridgeLib.igtl_server", "--simulate", "--port", str(port)],
+        [sys.executable, "-m", "OpenIGTLinkBridgeLib.tracker_server", "--simulate", "--port", str(port)],
         stderr=subprocess.PIPE,
         text=True,
     )

@@ -166,7 +166,9 @@ class NavigationController:
         pose_time: optional callable(node) -> the time (s) the node's new pose was measured, for hold-still
             collection; by default the clock when the pose arrives. Our receiver knows each frame's time stamp.
         robot_link_factory: callable(host, port) -> a connected link to the robot controller with ``send_path``,
-            ``wait_for``, ``poll``, ``stop``, ``close`` (``OpenIGTLinkBridgeLib.robot_link.RobotLink``, the default).
+            ``wait_for``, ``poll``, ``stop``, ``close``: ``OpenIGTLinkBridgeLib.robot_link.RobotLink``, handed in by
+            the shell (the navigation layer sits below the tracker and robot feed and never imports it). Without
+            one, planning works and sending the path says that this session has no robot link.
     """
 
     def __init__(
@@ -460,6 +462,8 @@ class NavigationController:
         return None
 
     def _robot_problem(self, parameters):
+        if self.robot_link_factory is None:
+            return "this session has no link to a robot (start navigation from the Slicer module or ramsicp web)"
         if parameters.imageToRobotBase is None:
             return "calibrate the robot first (step 6): the path goes to the robot through ImageToRobotBase"
         if self.robot is not None and self.robot.connected and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
@@ -735,10 +739,7 @@ class NavigationController:
         self._say("STOP sent to the robot")
 
     def _connect_robot(self, host, port):
-        factory = self.robot_link_factory
-        if factory is None:
-            from OpenIGTLinkBridgeLib.robot_link import RobotLink as factory
-        return factory(host, port)
+        return self.robot_link_factory(host, port)
 
     def _drop_robot(self, why):
         """Stop the robot and close the link (a navigation that goes away must not leave the robot moving)."""

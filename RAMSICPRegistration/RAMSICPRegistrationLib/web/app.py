@@ -192,9 +192,12 @@ class NavigationWebApp:
     def start_workflow(self, simulator_options=None):
         """Create the controllers on the scene, listen to the navigation controller and show its nodes."""
         from OpenIGTLinkBridgeLib.bridge_controller import BridgeController
+        from OpenIGTLinkBridgeLib.robot_link import RobotLink
 
         check_output_directory(self.output_directory)
-        self.controller = NavigationController(self.scene, autosave_directory=self.output_directory)
+        self.controller = NavigationController(
+            self.scene, autosave_directory=self.output_directory, robot_link_factory=RobotLink
+        )
         options = DEMO_SIMULATOR if simulator_options is None else simulator_options
         self.bridge = BridgeController(self.scene, simulator_options=options)
         parameters = self.controller.parameters
