@@ -4,11 +4,12 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.registration import register
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.experiments import demo
@@ -224,7 +225,10 @@ def test_demo_on_the_ct_phantom_runs_the_image_side(tmp_path, capsys):
 
 def test_console_script_module_runs():
     completed = subprocess.run(
-        [sys.executable, "-m", "RAMSICPRegistrationLib.cli", "--version"], capture_output=True, text=True, check=True
+        [sys.executable, "-m", "RAMSICPRegistrationLib.commands", "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
     )
     assert completed.stdout.startswith("ramsicp 0.1.0")
 
@@ -340,9 +344,58 @@ def test_a_reader_that_leaves_early_costs_nothing(case_files, tmp_path):
     output = tmp_path / "result.json"
     arguments = _arguments(folder, "--sweep", "--json", str(output))
     process = subprocess.Popen(
-        [sys.executable, "-m", "RAMSICPRegistrationLib.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        [sys.executable, "-m", "RAMSICPRegistrationLib.commands", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
     )
     process.stdout.close()
     error = process.stderr.read().decode()
     assert process.wait() == 0 and error == ""
     assert len(json.loads(output.read_text())["sweep"]) == 21
+
+
+def test_every_command_and_argument_says_what_it_is_for():
+    import argparse
+
+    from RAMSICPRegistrationLib.commands import COMMANDS, build_parser
+
+    parser = build_parser()
+    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    assert list(commands.choices) == [name.replace("_", "-") for name in COMMANDS]
+    for name, command in commands.choices.items():
+        assert command.description and len(command.description) > 60, name
+        silent = [a.dest for a in command._actions if not a.help and not isinstance(a, argparse._HelpAction)]
+        assert silent == [], (name, silent)
+
+
+def test_the_documented_command_reference_is_the_parsers_own():
+    from RAMSICPRegistrationLib.commands.reference import BEGIN, END, command_reference, replace_in
+
+    document = (Path(__file__).resolve().parents[1] / "Documentation" / "command-line.md").read_text(encoding="utf-8")
+    assert replace_in(document, command_reference()) == document, (
+        "Documentation/command-line.md is out of date: python -m RAMSICPRegistrationLib.commands.reference "
+        "Documentation/command-line.md"
+    )
+    assert document.count(BEGIN) == document.count(END) == 1
+    assert "### `ramsicp register`" in document and "| `--markers-patient` |  | the same centres" in document
+
+
+def test_progress_is_drawn_by_tqdm_on_a_terminal_only():
+    import io
+
+    from RAMSICPRegistrationLib.commands._console import Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal, pipe = Terminal(), io.StringIO()
+    for stream in (terminal, pipe):
+        progress = Progress(stream)
+        for done in range(4):
+            progress("phantom", done, 3)
+        progress("registration", 1, 2)
+        progress.close()
+    assert pipe.getvalue() == ""
+    drawn = terminal.getvalue()
+    assert "phantom: 100%" in drawn and "3/3" in drawn and "registration:  50%" in drawn and "1/2" in drawn

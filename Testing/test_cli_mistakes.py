@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.io.file_checks import PointFileError, check_output_file, check_output_folder
 
 
@@ -213,15 +213,18 @@ def test_help_and_argument_errors_load_neither_scipy_nor_vtk():
     are in ``benchmarks/bench_cli_startup.py``)."""
     script = (
         "import sys\n"
-        "from RAMSICPRegistrationLib import cli\n"
-        "cli._parser()\n"
-        "heavy = ('scipy', 'vtk', 'vtkmodules', 'matplotlib', 'slicer', 'nrrd', 'nibabel', 'pydicom', 'serial')\n"
+        "from RAMSICPRegistrationLib import commands\n"
+        "commands.build_parser()\n"
+        "heavy = ('scipy', 'vtk', 'vtkmodules', 'matplotlib', 'slicer', 'nrrd', 'nibabel', 'pydicom', 'serial',"
+        " 'tqdm')\n"
         "print(sorted({name.split('.')[0] for name in sys.modules} & set(heavy)))\n"
     )
     loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
     assert loaded.strip() == "[]"
     completed = subprocess.run(
-        [sys.executable, "-m", "RAMSICPRegistrationLib.cli", "register", "--fle", "-1"], capture_output=True, text=True
+        [sys.executable, "-m", "RAMSICPRegistrationLib.commands", "register", "--fle", "-1"],
+        capture_output=True,
+        text=True,
     )
     assert completed.returncode == 2 and completed.stderr.count("\n") == 1 and "argument --fle" in completed.stderr
 
@@ -244,3 +247,27 @@ def test_an_output_never_overwrites_an_input(tmp_path, capsys, no_work):
     code, _, err = _run(["register", *others, "--markers-image", markers, "--json", markers], capsys)
     _assert_one_line(code, err, "register", "give another name for the output")
     assert ct.read_bytes() == b"NRRD0004\n" and markers.read_text() == "{}"
+
+
+@pytest.mark.parametrize("command", [["demo", "--trials", "200"], ["phantom", "--out", "{tmp}/phantom"]])
+def test_ctrl_c_is_one_line_and_exit_130_with_nothing_written(tmp_path, command):
+    """Ctrl-C during a long run printed a 20-line traceback; now one line, exit 130 (128 + SIGINT), no output."""
+    import signal
+    import time
+
+    arguments = [part.replace("{tmp}", str(tmp_path)) for part in command]
+    json_out = tmp_path / "demo.json"
+    if command[0] == "demo":
+        arguments += ["--json", str(json_out)]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "RAMSICPRegistrationLib.commands", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(4.0)  # well into the work: the imports take about 1 s
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=60)
+    assert process.returncode == 130, (out, err)
+    assert err in (f"ramsicp {command[0]}: stopped by Ctrl-C\n", "ramsicp: stopped by Ctrl-C\n")
+    assert not json_out.exists() and not (tmp_path / "phantom").exists()

@@ -8,7 +8,7 @@ import pytest
 from test_hold_still import _synthetic_session
 
 from OpenIGTLinkBridgeLib.plus_sequence import TrackedFrame, read_sequence, write_sequence
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.transforms import make_transform, rotation_about_axis
 from RAMSICPRegistrationLib.io.point_files import read_points
 

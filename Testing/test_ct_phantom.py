@@ -7,7 +7,7 @@ import nibabel
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.image.ct_segmentation import bone_surface, segment_bone
 from RAMSICPRegistrationLib.image.volume_io import load_volume, save_nrrd
 from RAMSICPRegistrationLib.io.point_files import read_points

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.experiments.cut_trial import ChainErrors, run_cut_trial
 
 FAST = 400.0  # mm/s: the robot's motion runs in simulated time, so only the number of steps changes

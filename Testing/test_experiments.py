@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.paired_point import rigid_procrustes
 from RAMSICPRegistrationLib.core.transforms import apply_transform
 from RAMSICPRegistrationLib.experiments import experiments

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.transforms import apply_transform, make_transform, rotation_about_axis
 from RAMSICPRegistrationLib.io.surface_files import write_surface
 

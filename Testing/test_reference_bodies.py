@@ -4,7 +4,7 @@ low-dose noise, a turned scanner grid, a sphere cut by the field of view. True c
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.cli import main
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.transforms import apply_transform
 from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
 from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone

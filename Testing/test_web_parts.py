@@ -89,7 +89,7 @@ def test_a_hand_held_probe_puts_its_tip_where_it_is_told_in_tracker_coordinates(
     ],
 )
 def test_bad_web_arguments_are_one_line_and_exit_code_2(tmp_path, capsys, arguments, expected):
-    from RAMSICPRegistrationLib.cli import main
+    from RAMSICPRegistrationLib.commands import main
 
     (tmp_path / "notes.txt").write_text("not a scene")
     arguments = [argument.replace("{tmp}", str(tmp_path)) for argument in arguments]
@@ -100,7 +100,7 @@ def test_bad_web_arguments_are_one_line_and_exit_code_2(tmp_path, capsys, argume
 
 @needs_slicer
 def test_a_busy_port_is_reported_before_anything_starts(tmp_path, capsys):
-    from RAMSICPRegistrationLib.cli import main
+    from RAMSICPRegistrationLib.commands import main
 
     with socket.create_server(("127.0.0.1", 0)) as busy:
         port = busy.getsockname()[1]
@@ -111,7 +111,7 @@ def test_a_busy_port_is_reported_before_anything_starts(tmp_path, capsys):
 
 @needs_slicer
 def test_demo_and_scene_exclude_each_other():
-    from RAMSICPRegistrationLib.cli import main
+    from RAMSICPRegistrationLib.commands import main
 
     assert main(["web", "--demo", "--scene", "x.mrb"]) == 2  # argparse's one line, its exit code returned
 

@@ -18,11 +18,11 @@ import numpy as np
 CASES = {
     "baseline: python -c pass": ["-c", "pass"],
     "baseline: python -c 'import numpy'": ["-c", "import numpy"],
-    "ramsicp --help": ["-m", "RAMSICPRegistrationLib.cli", "--help"],
-    "ramsicp register --help": ["-m", "RAMSICPRegistrationLib.cli", "register", "--help"],
-    "ramsicp register --fle -1 (refused)": ["-m", "RAMSICPRegistrationLib.cli", "register", "--fle", "-1"],
-    "ramsicp ipc --help": ["-m", "RAMSICPRegistrationLib.cli", "ipc", "--help"],
-    "ramsicp reproduce --help": ["-m", "RAMSICPRegistrationLib.cli", "reproduce", "--help"],
+    "ramsicp --help": ["-m", "RAMSICPRegistrationLib.commands", "--help"],
+    "ramsicp register --help": ["-m", "RAMSICPRegistrationLib.commands", "register", "--help"],
+    "ramsicp register --fle -1 (refused)": ["-m", "RAMSICPRegistrationLib.commands", "register", "--fle", "-1"],
+    "ramsicp ipc --help": ["-m", "RAMSICPRegistrationLib.commands", "ipc", "--help"],
+    "ramsicp reproduce --help": ["-m", "RAMSICPRegistrationLib.commands", "reproduce", "--help"],
     "for scale: python -c 'import scipy.stats'": ["-c", "import scipy.stats"],
 }
 

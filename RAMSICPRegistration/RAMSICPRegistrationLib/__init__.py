@@ -26,6 +26,8 @@ The sub-packages are the layers of DESIGN.md, each importing only those before i
 ``simulation``  the virtual patient, CT phantoms and the shipped bone meshes
 ``navigation``  the surgeon's workflow on an MRML scene, scene rendering
 ``experiments`` the demo, the trials and the paper's experiments
+``web``         the browser navigation view (trame-slicer), a second shell over the navigation controller
+``commands``    the ``ramsicp`` command line, one module per command
 =============== ==========================================================================================
 
 The names below are imported on first use, so ``import RAMSICPRegistrationLib`` stays cheap and the registration

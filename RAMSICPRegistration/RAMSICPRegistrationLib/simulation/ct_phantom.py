@@ -117,6 +117,7 @@ def make_ct_phantom(
     metal=None,
     direction=LPS_DIRECTION,
     cut_marker=None,
+    progress=None,
 ):
     """Render a CT phantom of a virtual patient.
 
@@ -134,6 +135,8 @@ def make_ct_phantom(
             bracket through the shaft.
         direction: (3, 3) RAS directions of the grid's i, j, k axes (columns); LPS-aligned by default.
         cut_marker: optional marker number (1 to 4) whose sphere the field of view cuts.
+        progress: optional callable ``progress(step, done, total)`` called as bone, reference body and scan are
+            painted (3 steps).
 
     Returns:
         (CTVolume, PhantomTruth).
@@ -156,8 +159,10 @@ def make_ct_phantom(
     if cut_marker is not None:
         volume = cut_through_sphere(volume, markers, radius, cut_marker)
     logger.info("CT phantom grid %s voxels of %s mm", volume.voxels.shape, spacing.tolist())
-
+    progress = progress or (lambda step, done, total: None)
+    progress("CT phantom", 0, 3)
     _paint_bone(volume, vertices, triangles, top, anatomy, np.random.default_rng(seed))
+    progress("CT phantom", 1, 3)
     metal = paint_mounted_body(
         volume,
         patient.reference_to_image,
@@ -168,7 +173,9 @@ def make_ct_phantom(
         bone_anchor(patient, body),
         metal,
     )
+    progress("CT phantom", 2, 3)
     scanned = scan(volume, noise_hu, seed + 1)
+    progress("CT phantom", 3, 3)
     truth = PhantomTruth(
         reference_to_image=patient.reference_to_image.copy(),
         marker_centres=markers.copy(),

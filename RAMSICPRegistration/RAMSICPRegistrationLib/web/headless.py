@@ -51,7 +51,7 @@ def launch_chromium(playwright):
 def start_web_view(arguments, timeout_s=600.0, log_path=None):
     """Run ``ramsicp web <arguments>`` (add ``--port 0`` for any free port); returns (process, url) once the page
     is served. RuntimeError with the command's output when it exits or stays silent for ``timeout_s``."""
-    command = [sys.executable, "-m", "RAMSICPRegistrationLib.cli", "web", *map(str, arguments)]
+    command = [sys.executable, "-m", "RAMSICPRegistrationLib.commands", "web", *map(str, arguments)]
     log = open(log_path, "w") if log_path is not None else subprocess.DEVNULL  # noqa: SIM115 (the process keeps it)
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=log, text=True)
     lines = queue.Queue()

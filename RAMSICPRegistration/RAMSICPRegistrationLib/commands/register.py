@@ -1,0 +1,215 @@
+"""``ramsicp register``: probe points and marker centres registered to the image point cloud (CR, then the fine
+step), with FRE, TRE and the per-point residuals; exit 4 when the result fails a check."""
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
+from ..core.sweep import MAX_SCALES
+from ..io.file_checks import check_output_file
+from ._arguments import FINITE, POSITIVE_MM
+from ._console import decimals
+from .exit_codes import EXIT_ALARM
+
+
+def add_parser(commands):
+    reg = commands.add_parser(
+        "register",
+        help="register probe points and markers to an image point cloud",
+        description="The coarse registration (CR) on the marker-sphere centres, then the fine step of --method on "
+        "the probe points (cr-fused by default: markers and probe points in one weighted fit), and ReferenceToImage "
+        "with the FRE, the probe points' residuals and, given targets, the TRE (eq. 11). Coordinates: files that "
+        "state their frame (markups JSON, fcsv, model headers) are honoured; others are taken as --untagged-space.",
+    )
+    reg.add_argument("--ipc", required=True, help="image point cloud: .vtk .vtp .stl .ply .obj or a point file")
+    reg.add_argument(
+        "--ppc", required=True, help="probe points in reference coordinates (.mrk.json .fcsv .csv .txt .npy)"
+    )
+    reg.add_argument(
+        "--markers-image",
+        required=True,
+        help="marker-sphere centres in the image; labels 'M<n> <status>' (as ramsicp ipc writes them) pair "
+        "marker n with the n-th patient marker and say whether its sphere was ok, partial or deformed",
+    )
+    reg.add_argument("--markers-patient", required=True, help="the same centres in reference coordinates")
+    reg.add_argument(
+        "--accept-flagged-markers",
+        action="store_true",
+        help="use marker centres that ramsicp ipc flagged partial or deformed (refused otherwise)",
+    )
+    reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
+    reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
+    reg.add_argument(
+        "--method",
+        choices=METHODS,
+        help=f"default {DEFAULT_METHOD} (markers and probe points in one fit); cr-ramsicp with --scale or --sweep",
+    )
+    how = reg.add_mutually_exclusive_group()
+    how.add_argument("--scale", type=FINITE, help="scale factor L for one RAMSICP run, 1 to 20 (default 5; cr-ramsicp)")
+    how.add_argument("--sweep", action="store_true", help="run L = 1..5 step 0.2 and choose L by --policy (cr-ramsicp)")
+    reg.add_argument(
+        "--scales",
+        nargs=3,
+        type=FINITE,
+        metavar=("START", "STOP", "STEP"),
+        default=(1.0, 5.0, 0.2),
+        help=f"the sweep's range (default 1 5 0.2; L from 1 to 20, at most {MAX_SCALES} values)",
+    )
+    reg.add_argument(
+        "--policy",
+        choices=POLICIES,
+        help="how the sweep picks L (default: targets when targets are given, else rms-plateau)",
+    )
+    reg.add_argument(
+        "--fle",
+        type=POSITIVE_MM,
+        help="marker localisation error (mm) for the predicted TRE and cr-fused's marker weights "
+        "(default: estimated from the FRE)",
+    )
+    reg.add_argument(
+        "--untagged-space",
+        type=str.upper,
+        choices=("RAS", "LPS"),
+        default="RAS",
+        help="frame of files that do not state one (default RAS)",
+    )
+    reg.add_argument(
+        "--json",
+        type=Path,
+        help=f"write the full result as JSON (also when the result fails a check: exit code {EXIT_ALARM})",
+    )
+    reg.set_defaults(run=run)
+
+
+def run(arguments):
+    from ..core.registration import register
+    from ..core.surface_index import SurfaceIndex
+    from ..core.sweep import make_scales
+    from ..io.point_files import read_points
+    from ..io.surface_files import read_surface_points
+
+    space = arguments.untagged_space
+    if (arguments.targets_image is None) != (arguments.targets_patient is None):
+        raise ValueError("give --targets-image and --targets-patient together")
+    scales = make_scales(*arguments.scales)
+    inputs = (arguments.ipc, arguments.ppc, arguments.markers_image, arguments.markers_patient)
+    inputs += (arguments.targets_image, arguments.targets_patient)
+    check_output_file(arguments.json, "--json", (".json",), inputs)
+    clock = time.perf_counter()
+    ipc = read_surface_points(arguments.ipc, space)
+    ppc = read_points(arguments.ppc, space).points
+    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
+    targets_image = targets_patient = None
+    if arguments.targets_image:
+        targets_image = read_points(arguments.targets_image, space).points
+        targets_patient = read_points(arguments.targets_patient, space).points
+    result = register(
+        SurfaceIndex(ipc),
+        ppc,
+        markers_image,
+        markers_patient,
+        targets_image,
+        targets_patient,
+        method=arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp"),
+        scale=arguments.scale,
+        sweep=arguments.sweep,
+        scales=scales,
+        policy=arguments.policy,
+        fle_mm=arguments.fle,
+    )
+    seconds = time.perf_counter() - clock
+    if arguments.json:  # written before anything is printed: a reader that leaves early loses nothing
+        document = result.to_dict()
+        document["warnings"] = marker_warnings + document["warnings"]
+        document["seconds"] = seconds
+        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    loud = marker_warnings + list(result.alarms)
+    print("".join(f"WARNING: {warning}\n" for warning in loud) + _format_result(result, len(ipc), seconds))
+    if result.alarms:
+        print(
+            f"ramsicp register: the result failed {len(result.alarms)} check(s) (WARNING above); it is printed"
+            + (f" and written to {arguments.json}" if arguments.json else "")
+            + f", and the exit code is {EXIT_ALARM}",
+            file=sys.stderr,
+        )
+        return EXIT_ALARM
+    return 0
+
+
+def _read_markers_pair(arguments, space):
+    """Image and patient marker centres, paired by marker number; flagged ones refused unless accepted.
+
+    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): a warning for each flagged marker used.
+    """
+    from ..io.marker_files import flagged_message, pair_markers, read_markers
+
+    image = read_markers(arguments.markers_image, space)
+    patient = read_markers(arguments.markers_patient, space)
+    markers_image, markers_patient, _ = pair_markers(image, patient)
+    if not image.flagged():
+        return markers_image, markers_patient, []
+    flagged = flagged_message(image)
+    if not arguments.accept_flagged_markers:
+        raise ValueError(
+            f"{arguments.markers_image}: {flagged} (flagged by ramsicp ipc: the centre may be off); check it in "
+            "the CT, then delete it from the file (3 markers are enough) or correct it and relabel it 'ok', "
+            "or pass --accept-flagged-markers to use it anyway"
+        )
+    return (
+        markers_image,
+        markers_patient,
+        [
+            f"{flagged} in {arguments.markers_image} (flagged by ramsicp ipc), used as you asked: the coarse "
+            "registration may be off by that sphere's error"
+        ],
+    )
+
+
+def _default_method_fits(arguments):
+    """--scale, --sweep and --policy are RAMSICP's: without --method they ask for cr-ramsicp."""
+    return arguments.scale is None and not arguments.sweep and arguments.policy is None
+
+
+def _format_result(result, ipc_count, seconds):
+    lines = []
+    method = result.method.upper()
+    if result.method == "cr-ramsicp":
+        method += f" (L = {result.scale:g}, chosen by '{result.scale_policy}')"
+    if result.iterations is not None:
+        method += f", {result.iterations} iterations" + ("" if result.converged else " (not converged)")
+    lines.append(f"method            {method}")
+    lines.append(f"point clouds      {ipc_count} IPC points, {len(result.residuals_mm)} probe points; {seconds:.2f} s")
+    lines.append(f"FRE (markers)     {result.fre_mm:.2f} mm  [{decimals(result.marker_residuals_mm)}]")
+    worst = int(np.argmax(result.residuals_mm))
+    lines.append(
+        f"probe points RMS  {result.ppc_rms_mm:.2f} mm to the surface "
+        f"(worst: point {worst}, {result.residuals_mm[worst]:.2f} mm)"
+    )
+    weights = result.fused_weights
+    if weights is not None:
+        lines.append(f"weights           {weights.describe()}")
+    if result.tre_mm is not None:
+        lines.append(f"TRE (eq. 11)      {result.tre_mm:.2f} mm  [{decimals(result.target_errors_mm)}]")
+        if result.predicted_tre_mm is not None:
+            lines.append(
+                f"predicted TRE     {result.predicted_tre_rms_mm:.2f} mm  [{decimals(result.predicted_tre_mm)}] "
+                "from the fused fit's covariance"
+            )
+        lines.append(f"predicted CR TRE  [{decimals(result.predicted_cr_tre_mm)}] mm for FLE {result.fle_mm:.2f} mm")
+    lines.append("ReferenceToImage")
+    lines.extend("  " + "  ".join(f"{value:11.5f}" for value in row) for row in result.reference_to_image)
+    if result.sweep:
+        lines.append("sweep     L   RMS (mm)   TRE (mm)   iterations")
+        for entry in result.sweep:
+            tre = "-" if entry.tre_mm is None else f"{entry.tre_mm:.3f}"
+            mark = "  <- chosen" if entry.scale == result.scale else ""
+            result_text = f"{entry.result.rms_mm:8.3f}   {tre:>8}   {entry.result.iterations:10d}"
+            lines.append(f"      {entry.scale:5.1f}   {result_text}{mark}")
+    for warning in result.warnings:
+        if warning not in result.alarms:  # the alarms lead the summary, in capitals
+            lines.append(f"warning: {warning}")
+    return "\n".join(lines)
