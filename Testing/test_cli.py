@@ -399,3 +399,37 @@ def test_progress_is_drawn_by_tqdm_on_a_terminal_only():
     assert pipe.getvalue() == ""
     drawn = terminal.getvalue()
     assert "phantom: 100%" in drawn and "3/3" in drawn and "registration:  50%" in drawn and "1/2" in drawn
+
+
+def test_simulate_collection_writes_the_patient_side_of_a_phantoms_session(
+    tmp_path, tibia_patient, tibia_index, capsys
+):
+    """Only the phantom's truth.json is read: the same virtual patient is rebuilt from its bone and seed, and its
+    touches land on that patient's bone, mapped there by the true ReferenceToImage."""
+    from RAMSICPRegistrationLib.core.transforms import apply_transform
+    from RAMSICPRegistrationLib.io.marker_files import read_markers
+    from RAMSICPRegistrationLib.io.point_files import read_points
+
+    phantom = tmp_path / "phantom"
+    phantom.mkdir()
+    truth = {"bone": "right-tibia", "seed": 0, "reference_to_image": tibia_patient.reference_to_image.tolist()}
+    (phantom / "truth.json").write_text(json.dumps(truth))
+    out = tmp_path / "session"
+    assert main(["simulate-collection", "--phantom", str(phantom), "--out", str(out), "--probe-noise", "0.1"]) == 0
+    markers = read_markers(out / "markers_patient.mrk.json")
+    np.testing.assert_allclose(markers.points, tibia_patient.markers_reference)
+    assert markers.numbers == (1, 2, 3, 4) and markers.statuses == ("ok",) * 4
+    probe = read_points(out / "probe_points.mrk.json").points
+    on_bone = apply_transform(tibia_patient.reference_to_image, probe)
+    distances = tibia_index.nearest(on_bone)[0]
+    assert len(probe) == 40 and np.sqrt(np.mean(distances**2)) < 0.3  # 0.1 mm noise and the IPC's own spacing
+    targets_image = read_points(out / "targets_image.mrk.json").points
+    np.testing.assert_allclose(targets_image, tibia_patient.targets_image)
+    targets_patient = read_points(out / "targets_patient.mrk.json").points
+    assert np.abs(apply_transform(tibia_patient.reference_to_image, targets_patient) - targets_image).max() < 0.2
+    plane = np.array((out / "cut_plane.txt").read_text().split(), dtype=float)
+    assert np.abs((targets_image - plane[:3]) @ plane[3:]).max() < 0.5 and abs(np.linalg.norm(plane[3:]) - 1) < 1e-5
+    capsys.readouterr()
+    (phantom / "truth.json").write_text(json.dumps({**truth, "seed": 3}))
+    assert main(["simulate-collection", "--phantom", str(phantom), "--out", str(out)]) == 2
+    assert "is not the right-tibia's of seed 3" in capsys.readouterr().err

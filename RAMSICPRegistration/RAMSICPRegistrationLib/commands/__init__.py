@@ -15,7 +15,19 @@ from ._console import ReaderMayLeave, close_progress_bars
 from .exit_codes import EXIT_ALARM, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TOO_FEW_MARKERS
 
 #: The commands in the order ``--help`` lists them: the surgeon's workflow, then the demonstrations.
-COMMANDS = ("ipc", "collect", "register", "plan", "tcp", "web", "demo", "cut_demo", "reproduce", "phantom")
+COMMANDS = (
+    "ipc",
+    "collect",
+    "register",
+    "plan",
+    "tcp",
+    "web",
+    "demo",
+    "cut_demo",
+    "reproduce",
+    "phantom",
+    "simulate_collection",
+)
 
 
 def build_parser():

@@ -1,5 +1,6 @@
 """``ramsicp phantom``: a CT phantom (NRRD) of a shipped bone with its reference body, and its ground truth."""
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -95,6 +96,8 @@ def run(arguments):
         cut_marker=arguments.cut_marker,
         progress=Progress(),
     )
+    # The bone's name lets ramsicp simulate-collection rebuild the same virtual patient from the folder.
+    truth = dataclasses.replace(truth, settings={**truth.settings, "bone": arguments.bone})
     paths = write_phantom(arguments.out, volume, truth)
     shape = "x".join(str(n) for n in volume.voxels.shape)
     print(
