@@ -278,6 +278,28 @@ def test_process_ct_cancel_writes_nothing(scene, tibia_phantom):
     controller.close()
 
 
+def test_process_ct_refuses_a_second_run_while_one_is_going(scene, tibia_phantom):
+    """The Slicer widget's progress callback processes events, so a second click on 'Process CT' can arrive
+    while the first run goes on: it is refused with a message, and the button is disabled meanwhile."""
+    from RAMSICPRegistrationLib.navigation.controller import Cancelled
+
+    controller = NavigationController(scene)
+    controller.parameters.ctVolume = mrml_nodes.volume_node(scene, tibia_phantom[0], "CT")
+    seen = []
+
+    def click_again_then_cancel(step, done, total):
+        seen.append((controller.availability()["process_ct"], controller.run("process_ct")))
+        seen.append(controller.status().message)
+        raise Cancelled
+
+    assert controller.availability()["process_ct"] is None
+    assert controller.run("process_ct", progress=click_again_then_cancel) is None
+    busy = "the CT is being processed; wait for it to finish or cancel it"
+    assert seen == [(busy, None), busy]
+    assert controller.availability()["process_ct"] is None  # available again once the run has ended
+    controller.close()
+
+
 def test_every_action_has_an_availability_and_run_refuses_unknown_ones(scene):
     controller = NavigationController(scene)
     assert set(controller.availability()) == set(ACTIONS)

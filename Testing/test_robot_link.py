@@ -172,12 +172,97 @@ def test_stop_and_a_lost_connection_stop_the_robot():
         simulator.stop()
 
 
-def test_an_unreachable_robot_is_one_clear_error():
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]  # bound, not listening: nothing answers there
-        with pytest.raises(OSError, match=f"the robot controller at 127.0.0.1:{port} cannot be reached"):
-            RobotLink("127.0.0.1", port, timeout_s=1.0)
+def closed_port():
+    """A loopback port bound but not listening: nothing answers there (a connection is refused at once)."""
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    return probe
+
+
+def silent_server():
+    """A loopback server that accepts connections (the system completes them in its backlog) and never answers:
+    a robot controller that hangs."""
+    return socket.create_server(("127.0.0.1", 0))
+
+
+def timed(costs, call, *args):
+    """``call(*args)``, its cost (s, ``time.perf_counter``) appended to ``costs``."""
+    start = time.perf_counter()
+    try:
+        return call(*args)
+    finally:
+        costs.append(time.perf_counter() - start)
+
+
+def test_an_unreachable_robot_is_one_clear_state_and_no_call_waits():
+    """A refused connection and a robot that takes the path but never answers: each call returns at once (what
+    is measured is how long the calls themselves take, which does not depend on the machine's load: nothing in
+    them waits), and a refusal is one clear line."""
+    costs = []
+    with closed_port() as closed:
+        port = closed.getsockname()[1]
+        link = timed(costs, RobotLink, "127.0.0.1", port)
+        for _ in range(5):
+            timed(costs, link.poll)
+        assert link.state == "DISCONNECTED" and not link.is_open
+        assert link.status_text.startswith(f"the robot controller at 127.0.0.1:{port} cannot be reached")
+        with pytest.raises(OSError, match="is closed"):
+            link.send_path(zigzag(passes=1))
+    with silent_server() as silent:
+        link = timed(costs, RobotLink, *silent.getsockname()[:2], 0.3)
+        timed(costs, link.send_path, zigzag(passes=8))
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            timed(costs, link.poll)
+            time.sleep(0.01)
+        assert link.connected and link.state == "SENT" and not link.outbox  # the path went out; no answer came
+        timed(costs, link.stop)
+        timed(costs, link.close)
+    assert max(costs) < 0.05, f"slowest call {1000 * max(costs):.1f} ms"
+
+
+@pytest.fixture
+def hanging_listener():
+    """A loopback listener whose backlog is full and which never accepts: a connection attempt to it hangs (the
+    system drops its SYN), as to a robot controller behind a dead network link."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(0)
+    fillers = []
+    for _ in range(8):  # a few connections fill a backlog of 0 on loopback
+        filler = socket.socket()
+        filler.setblocking(False)
+        filler.connect_ex(server.getsockname())
+        fillers.append(filler)
+    yield server.getsockname()[:2]
+    for filler in fillers:
+        filler.close()
+    server.close()
+
+
+def test_a_connection_that_never_completes_fails_after_the_timeout_without_waiting(hanging_listener):
+    costs = []
+    link = timed(costs, RobotLink, *hanging_listener, 0.3)
+    while link.is_open and len(costs) < 200:
+        timed(costs, link.poll)
+        time.sleep(0.01)
+    assert not link.connected and link.state == "DISCONNECTED"
+    host, port = hanging_listener
+    assert link.status_text == (
+        f"the robot controller at {host}:{port} cannot be reached (no connection within 0.3 s); start its "
+        "OpenIGTLink server or check the address"
+    )
+    assert max(costs) < 0.05, f"slowest call {1000 * max(costs):.1f} ms"
+
+
+def test_a_stop_before_the_path_is_written_cancels_it(hanging_listener):
+    """A path queued while the connection is still being made is dropped by a stop, never sent later."""
+    link = RobotLink(*hanging_listener, 5.0)
+    link.send_path(zigzag(passes=1))
+    assert link.state == "SENT" and link.outbox  # queued: the connection is not made yet
+    link.stop()
+    assert link.state == "DISCONNECTED" and not link.outbox
+    assert link.status_text == "stopped before the whole path was sent; the connection was closed"
 
 
 def test_the_tracker_sees_the_tool_where_the_robot_moved_it(robot):

@@ -15,16 +15,15 @@ on disk is complete after every frame. ``stop_recording()`` closes it.
 """
 
 import errno
-import ipaddress
 import logging
 import select
 import socket
-import threading
 import time
 
 import numpy as np
 
 from . import igtl_messages as igtl
+from .host_lookup import HostLookup
 
 logger = logging.getLogger(__name__)
 
@@ -68,7 +67,7 @@ class TrackerReceiver:
         self.last_status = None
         self._next_attempt = 0.0
         self._pending = None  # a connection attempt in progress
-        self._resolution = None  # {"address": ...} or {"error": ...}, filled by a resolver thread for a host name
+        self._lookup = None  # the HostLookup of the server's address
         self.resolution_error = None  # why the host name could not be resolved at the last attempt
         self.on_update = None  # optional callable(device, matrix, timestamp_s) after each valid transform
         self.recorder = None  # the SequenceRecorder while recording
@@ -83,31 +82,20 @@ class TrackerReceiver:
         return self.socket is not None
 
     def _address(self):
-        """The server's IPv4 address, or None while a host name is being resolved in a background thread (name
-        resolution can take seconds, and this runs on Slicer's GUI thread)."""
-        try:
-            return str(ipaddress.IPv4Address(self.host))
-        except ValueError:
-            pass
-        if self._resolution is None:
-            resolution = self._resolution = {}
-
-            def resolve():
-                try:
-                    resolution["address"] = socket.gethostbyname(self.host)
-                except OSError as error:
-                    resolution["error"] = f"cannot resolve the host name {self.host!r} ({error})"
-
-            threading.Thread(target=resolve, name="resolve OpenIGTLink host", daemon=True).start()
-        if "error" in self._resolution:  # try again at the next interval: the network may come back
-            if self.resolution_error != self._resolution["error"]:
-                logger.warning("%s", self._resolution["error"])
-            self.resolution_error, self._resolution = self._resolution["error"], None
+        """The server's IPv4 address, or None while a host name is being looked up (``host_lookup``: never on the
+        calling thread, Slicer's GUI thread, since a lookup can take seconds)."""
+        if self._lookup is None:
+            self._lookup = HostLookup(self.host)
+        if not self._lookup.done:
+            return None
+        if self._lookup.error is not None:  # try again at the next interval: the network may come back
+            if self.resolution_error != self._lookup.error:
+                logger.warning("%s", self._lookup.error)
+            self.resolution_error, self._lookup = self._lookup.error, None
             self._next_attempt = self.clock() + RECONNECT_INTERVAL_S
             return None
-        if "address" in self._resolution:
-            self.resolution_error = None
-        return self._resolution.get("address")
+        self.resolution_error = None
+        return self._lookup.address
 
     def _connect(self):
         """Advance a non-blocking connection attempt; never blocks the caller (Slicer's GUI thread)."""

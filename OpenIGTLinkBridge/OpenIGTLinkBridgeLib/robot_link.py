@@ -21,7 +21,9 @@ Robot to navigation::
     TRANSFORM  device ToolToRobotBase: where the robot's kinematics put the TCP, at the robot's report rate
 """
 
+import errno
 import logging
+import os
 import select
 import socket
 import time
@@ -31,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import igtl_messages as igtl
+from .host_lookup import HostLookup
 
 logger = logging.getLogger(__name__)
 
@@ -134,29 +137,37 @@ def _checked_poses(poses):
 
 
 class RobotLink:
-    """The navigation's connection to a robot controller: send a path, read the robot's reports.
+    """The navigation's connection to a robot controller: send a path, read the robot's reports. No call waits.
+
+    The link connects without blocking (``connect_ex`` on a non-blocking socket, a host name looked up off the
+    calling thread by ``host_lookup``), queues what it sends and writes it as the socket takes it, and reads only
+    what has arrived: ``poll()`` advances all of it and returns at once, so Slicer's GUI thread can call it from a
+    timer (the module's logic does, for as long as the link is open, whichever module is shown: a robot controller
+    drops a client that stops reading, and the robot stops). ``wait_for`` waits, for scripts and tests.
+
+    States (``state``): CONNECTING, CONNECTED, SENT (a path is out, no answer yet), then what the robot reports
+    (``ROBOT_STATES``), and DISCONNECTED (``status_text`` says why: refused, no answer within ``timeout_s``, lost).
 
     Args:
         host, port: the robot controller's OpenIGTLink server.
-        timeout_s: for connecting and for sending.
+        timeout_s: for connecting: no connection after this long is a failure.
         keep_poses: keep every reported ToolToRobotBase in ``poses`` and every STATUS (name, text) in ``statuses``
             (a test's or a recording's wish; a long cut at 125 Hz gives some 10 MB an hour).
+        clock: monotonic clock (s).
     """
 
-    def __init__(self, host="127.0.0.1", port=ROBOT_PORT, timeout_s=2.0, keep_poses=False):
-        self.host, self.port = host, port
-        try:
-            self.socket = socket.create_connection((host, port), timeout=timeout_s)
-        except OSError as error:
-            raise OSError(
-                f"the robot controller at {host}:{port} cannot be reached ({error.strerror or error}); start its "
-                "OpenIGTLink server or check the address"
-            ) from None
-        self.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    def __init__(self, host="127.0.0.1", port=ROBOT_PORT, timeout_s=2.0, keep_poses=False, clock=time.monotonic):
+        self.host, self.port, self.timeout_s, self.clock = host, port, timeout_s, clock
+        self.socket = None  # once connected
+        self._pending = None  # the socket while connecting
+        self._lookup = HostLookup(host)
+        self._deadline = clock() + timeout_s
+        self.outbox = bytearray()  # queued bytes the socket has not taken yet
+        self._unsent_path = 0  # bytes at the end of the outbox that belong to the path (cancelled by a stop)
         self.buffer = bytearray()
-        self.state = "CONNECTED"  # then one of ROBOT_STATES, or DISCONNECTED
+        self.state = "CONNECTING"  # CONNECTED, SENT, one of ROBOT_STATES, or DISCONNECTED
         self.states_seen = set()  # every state the robot reported for the path now out (several may come at once)
-        self.status_text = ""
+        self.status_text = f"connecting to {host}:{port}"
         self.path_id = None
         self.path_size = 0
         self.passed = 0  # poses of the path the robot has passed
@@ -165,44 +176,114 @@ class RobotLink:
         self.poses = [] if keep_poses else None
         self.statuses = [] if keep_poses else None
         self.skipped = 0
+        self.poll()
 
     @property
     def connected(self):
+        """True once the connection is made (and until it is closed)."""
         return self.socket is not None
 
+    @property
+    def is_open(self):
+        """True while connecting or connected: the link has not failed or been closed."""
+        return self.state != "DISCONNECTED"
+
     def send_path(self, poses, path_id=None):
-        """Send (N, 4, 4) PlannedToolToRobotBase poses as one path; returns its id."""
-        if self.socket is None:
+        """Queue (N, 4, 4) PlannedToolToRobotBase poses as one path (written by this call and the next polls, even
+        while still connecting); returns its id at once."""
+        if not self.is_open:
             raise OSError(f"the connection to the robot controller at {self.host}:{self.port} is closed")
         path_id = path_id or uuid.uuid4().hex[:12]
         data = encode_path(poses, path_id)
-        self._send(data)
+        self.outbox += data
+        self._unsent_path = len(self.outbox)
         self.path_id, self.path_size, self.passed, self.state = path_id, len(poses), 0, "SENT"
         self.states_seen = set()
         self.status_text = f"path {path_id}: {len(poses)} poses sent"
+        self._flush()
         return path_id
 
     def stop(self):
-        """Ask the robot to stop where it is."""
-        self._send(igtl.encode_status(PATH_DEVICE, igtl.Status(1, 0, STOP, "stop")))
-
-    def _send(self, data):
-        try:
-            self.socket.sendall(data)
-        except OSError as error:
+        """Ask the robot to stop where it is. A path not wholly written yet is cancelled instead: the rest is
+        dropped and the connection closed (the robot never receives its end, and a closed connection stops it)."""
+        if self._unsent_path:
             self.close()
-            raise OSError(f"sending to the robot controller at {self.host}:{self.port} failed ({error})") from None
+            self.status_text = "stopped before the whole path was sent; the connection was closed"
+            return
+        self.outbox += igtl.encode_status(PATH_DEVICE, igtl.Status(1, 0, STOP, "stop"))
+        self._flush()
 
+    # -- connection ------------------------------------------------------------------------------------------
+    def _connect(self):
+        """Advance the connection attempt; True once connected."""
+        if self._pending is None:
+            if not self._lookup.done:
+                return self._check_deadline()
+            if self._lookup.error is not None:
+                self._lost(f"the robot controller at {self.host}:{self.port} cannot be reached ({self._lookup.error})")
+                return False
+            pending = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            pending.setblocking(False)
+            error = pending.connect_ex((self._lookup.address, self.port))
+            if error not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
+                pending.close()
+                self._unreachable(os.strerror(error))
+                return False
+            self._pending = pending
+        _, writable, _ = select.select([], [self._pending], [], 0)
+        if not writable:
+            return self._check_deadline()
+        pending, self._pending = self._pending, None
+        error = pending.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if error:
+            pending.close()
+            self._unreachable(os.strerror(error))
+            return False
+        pending.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.socket = pending
+        if self.state == "CONNECTING":
+            self.state, self.status_text = "CONNECTED", f"connected to {self.host}:{self.port}"
+        return True
+
+    def _check_deadline(self):
+        if self.clock() >= self._deadline:
+            self._unreachable(f"no connection within {self.timeout_s:g} s")
+        return False
+
+    def _unreachable(self, why):
+        self._lost(
+            f"the robot controller at {self.host}:{self.port} cannot be reached ({why}); start its OpenIGTLink "
+            "server or check the address"
+        )
+
+    def _flush(self):
+        """Write what the socket takes now of the queued bytes."""
+        if self.socket is None or not self.outbox:
+            return
+        try:
+            sent = self.socket.send(self.outbox)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as error:
+            self._lost(f"sending to the robot controller at {self.host}:{self.port} failed ({error})")
+            return
+        del self.outbox[:sent]
+        self._unsent_path = max(0, self._unsent_path - sent)
+
+    # -- reading -----------------------------------------------------------------------------------------------
     def poll(self, timeout_s=0.0):
-        """Read and apply what the robot has sent (waiting up to ``timeout_s`` for the first bytes); returns the
-        number of messages applied."""
+        """Connect, write and read what can be now; with ``timeout_s`` > 0 wait up to that long for the first
+        bytes (a script's wish; the navigation polls with 0). Returns the number of messages applied."""
+        if not self.is_open or (self.socket is None and not self._connect()):
+            return 0
+        self._flush()
         if self.socket is None:
             return 0
         readable, _, _ = select.select([self.socket], [], [], timeout_s)
         while readable:
             try:
                 chunk = self.socket.recv(1 << 16)
-            except (BlockingIOError, InterruptedError, socket.timeout):
+            except (BlockingIOError, InterruptedError):
                 break
             except OSError as error:
                 self._lost(f"the connection broke ({error})")
@@ -223,14 +304,20 @@ class RobotLink:
         return len(messages)
 
     def wait_for(self, states, timeout_s):
-        """Poll until the robot has reported one of ``states`` for the path now out (or the connection is lost);
-        returns the first of ``states`` it reported, else the state it is in."""
+        """Poll until the robot has reported one of ``states`` for the path now out (or the link is lost);
+        returns the first of ``states`` it reported, else the state it is in. Blocks: for scripts and tests."""
         deadline = time.monotonic() + timeout_s
-        while not self.states_seen & set(states) and self.state != "DISCONNECTED":
+        while not self.states_seen & set(states) and self.is_open:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 break
-            self.poll(min(remaining, 0.1))
+            self.poll()
+            waiting = self.socket or self._pending
+            if waiting is not None and not self.states_seen & set(states):
+                writing = [waiting] if self.outbox or waiting is self._pending else []
+                select.select([self.socket] if self.socket else [], writing, [], min(remaining, 0.05))
+            elif waiting is None:
+                time.sleep(min(remaining, 0.01))  # a host name being looked up
         return next((state for state in states if state in self.states_seen), self.state)
 
     def _apply(self, message):
@@ -257,11 +344,12 @@ class RobotLink:
     def _lost(self, why):
         logger.warning("robot link: %s", why)
         self.close()
-        self.state, self.status_text = "DISCONNECTED", why
+        self.status_text = why
 
     def close(self):
-        if self.socket is not None:
-            self.socket.close()
-            self.socket = None
-        if self.state != "DISCONNECTED":
-            self.state = "DISCONNECTED"
+        for sock in (self.socket, self._pending):
+            if sock is not None:
+                sock.close()
+        self.socket = self._pending = None
+        self.outbox, self._unsent_path = bytearray(), 0
+        self.state = "DISCONNECTED"

@@ -25,8 +25,10 @@ the wedge's second cut), ``save_plan`` writes it as JSON, ``send_tool_path`` sen
 coordinates (``ImageToRobotBase``, eq. 4) to the robot controller over OpenIGTLink and ``stop_robot`` stops it.
 While the tracked cutting tool (``toolToTracker`` with ``toolTipToTool``) moves, ``status().guidance`` gives its
 distance and angle to the plan and its depth to the far cortex (``core.guidance``), green within the parameter
-node's tolerances; ``status()`` also takes in what the robot has reported since the last call. A plane moved or a
-setting changed after planning makes the plan out of date: the path is not sent until it is planned again.
+node's tolerances. A plane moved or a setting changed after planning makes the plan out of date: the path is not
+sent until it is planned again. Nothing waits for the robot: ``service()``, which a shell calls from a timer that
+runs for as long as the navigation lives (in Slicer the module's logic owns it, so it runs while other modules are
+shown), connects, writes and reads the robot link and turns its answer into the status message.
 """
 
 import json
@@ -49,6 +51,8 @@ logger = logging.getLogger(__name__)
 
 #: Seconds without a new pose after which a tracked transform counts as stale (as SlicerIGT's Watchdog).
 STALE_AFTER_S = 1.0
+#: Seconds the robot controller has to accept (or refuse) a path before the navigation gives up on it.
+ROBOT_ANSWER_TIMEOUT_S = 2.0
 
 #: The transforms whose poses the controller follows: parameter name -> the name shown to the user.
 WATCHED = {
@@ -165,8 +169,9 @@ class NavigationController:
         stale_after_s: a watched transform without a new pose for longer than this is stale.
         pose_time: optional callable(node) -> the time (s) the node's new pose was measured, for hold-still
             collection; by default the clock when the pose arrives. Our receiver knows each frame's time stamp.
-        robot_link_factory: callable(host, port) -> a connected link to the robot controller with ``send_path``,
-            ``wait_for``, ``poll``, ``stop``, ``close``: ``OpenIGTLinkBridgeLib.robot_link.RobotLink``, handed in by
+        robot_link_factory: callable(host, port) -> a link to the robot controller that never blocks, with
+            ``send_path``, ``poll``, ``stop``, ``close``, ``is_open``, ``state``, ``states_seen``, ``status_text``:
+            ``OpenIGTLinkBridgeLib.robot_link.RobotLink``, handed in by
             the shell (the navigation layer sits below the tracker and robot feed and never imports it). Without
             one, planning works and sending the path says that this session has no robot link.
     """
@@ -183,6 +188,8 @@ class NavigationController:
         self.scene = scene
         self.robot_link_factory = robot_link_factory
         self.robot = None  # the link to the robot controller, once a path was sent
+        self._robot_answer = None  # (perf_counter when sent, timeout s, ToolPath) while the answer is awaited
+        self._processing_ct = False
         self.steps = NavigationLogic(scene, autosave_directory)
         self.clock, self.stale_after_s = clock, stale_after_s
         self.pose_time = pose_time
@@ -422,7 +429,7 @@ class NavigationController:
         calibrated = None if parameters.probeTipToProbe is not None else "calibrate the probe tip (pivot) first"
         collecting = tracking or calibrated
         reasons = {
-            "process_ct": None if parameters.ctVolume is not None else "select the CT volume",
+            "process_ct": self._ct_problem(parameters),
             "start_pivot": tracking if self._pivot_poses is None else "pivot recording is already running",
             "stop_pivot": None if self._pivot_poses is not None else "start pivot recording first",
             "add_reference_body_markers": None,
@@ -449,10 +456,15 @@ class NavigationController:
             ),
             "save_plan": self._plan_problem(parameters),
             "send_tool_path": self._plan_problem(parameters) or self._robot_problem(parameters),
-            "stop_robot": None if self.robot is not None and self.robot.connected else "no path was sent to the robot",
+            "stop_robot": None if self.robot is not None and self.robot.is_open else "no path was sent to the robot",
             "save": None,
         }
         return reasons
+
+    def _ct_problem(self, parameters):
+        if self._processing_ct:
+            return "the CT is being processed; wait for it to finish or cancel it"
+        return None if parameters.ctVolume is not None else "select the CT volume"
 
     def _plan_problem(self, parameters):
         if self._cut is None:
@@ -466,7 +478,7 @@ class NavigationController:
             return "this session has no link to a robot (start navigation from the Slicer module or ramsicp web)"
         if parameters.imageToRobotBase is None:
             return "calibrate the robot first (step 6): the path goes to the robot through ImageToRobotBase"
-        if self.robot is not None and self.robot.connected and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
+        if self.robot is not None and self.robot.is_open and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
             return "the robot is still on the last path; wait for it or stop it"
         return None
 
@@ -492,15 +504,19 @@ class NavigationController:
         """Segment the selected CT, build the IPC and find the marker spheres; returns ImageSideNodes.
 
         ``progress(step, done, total)`` may raise ``Cancelled``: the run then stops, nothing is written and None is
-        returned.
+        returned. While it runs, ``process_ct`` is unavailable: a shell whose progress callback processes events (a
+        click may arrive) cannot start a second run.
         """
         self._require("process_ct")
         parameters = self.parameters
+        self._processing_ct = True  # a shell's progress callback processes events: a second click must not start again
         try:
             image = self.steps.process_ct(parameters.ctVolume, parameters.thresholdHU, progress=progress)
         except Cancelled:
             self._say("CT processing cancelled; nothing was changed", is_error=True)
             return None
+        finally:
+            self._processing_ct = False
         self._say("; ".join(image.warnings) or "IPC and marker centres ready", is_error=bool(image.warnings))
         self._notify("image", image)
         return image
@@ -697,45 +713,83 @@ class NavigationController:
         self._say(f"plan written to {path}")
         return path
 
-    def send_tool_path(self, timeout_s=2.0):
+    def send_tool_path(self, timeout_s=ROBOT_ANSWER_TIMEOUT_S):
         """Send the tool path in robot-base coordinates (``ImageToRobotBase`` @ each pose, eq. 4) to the robot
-        controller at ``robotHost``:``robotPort`` and wait up to ``timeout_s`` for its answer; returns the ToolPath
-        sent. A refusal raises WorkflowError with the robot's reason."""
+        controller at ``robotHost``:``robotPort``; returns the ToolPath sent, at once.
+
+        Nothing here waits for the network (this runs on Slicer's GUI thread): the link connects and writes without
+        blocking, and ``service()`` (a timer's work) reads the robot's answer. No answer within ``timeout_s`` (s),
+        a refusal or an unreachable robot become an error message then, and the link is closed.
+        """
         self._require("send_tool_path")
         parameters = self.parameters
         path = self._cut.path.in_robot_base(matrix_of(parameters.imageToRobotBase, "ImageToRobotBase"))
         host, port = parameters.robotHost.strip(), parameters.robotPort
         if not host:
             raise WorkflowError("the robot controller's address is empty; give its host, e.g. 127.0.0.1")
-        clock = time.perf_counter()
+        if self.robot is None or not self.robot.is_open or (self.robot.host, self.robot.port) != (host, port):
+            self._drop_robot("another robot address")
+            self.robot = self._connect_robot(host, port)
+        if not self.robot.is_open:  # refused at once (nothing listens on that port)
+            raise WorkflowError(self.robot.status_text)
         try:
-            if self.robot is None or not self.robot.connected or (self.robot.host, self.robot.port) != (host, port):
-                self._drop_robot("another robot address")
-                self.robot = self._connect_robot(host, port)
             self.robot.send_path(path.poses)
         except OSError as error:
             raise WorkflowError(str(error)) from None
-        state = self.robot.wait_for(("ACCEPTED", "REFUSED", "MOVING", "DONE"), timeout_s)
-        if state == "REFUSED":
-            raise WorkflowError(f"the robot refused the path: {self.robot.status_text}")
-        if state not in ("ACCEPTED", "MOVING", "DONE"):
-            raise WorkflowError(
-                f"the robot at {host}:{port} did not accept the path within {timeout_s:g} s ({self.robot.status_text})"
-            )
+        self._robot_answer = (time.perf_counter(), timeout_s, path)
         self._say(
             f"path sent to the robot at {host}:{port}: {len(path.poses)} poses, {path.passes} passes, "
-            f"{path.length_mm:.0f} mm, accepted {1000 * (time.perf_counter() - clock):.0f} ms after sending began"
+            f"{path.length_mm:.0f} mm; waiting for its answer"
         )
         self._notify("path-sent", path)
+        self.service()
         return path
 
+    def service(self):
+        """Advance the robot link: connect, write, read its reports, and judge the answer to the path sent. Never
+        waits. A shell calls it from a timer for as long as the navigation lives, whichever module or page is
+        shown (Slicer: the module's logic owns that timer), because a robot controller drops a client that stops
+        reading, and the robot then stops mid-cut."""
+        link = self.robot
+        if link is None:
+            return
+        try:
+            link.poll()
+        except OSError as error:
+            logger.warning("robot link: %s", error)
+        if self._robot_answer is None:
+            return
+        sent_at, timeout_s, path = self._robot_answer
+        seen = link.states_seen
+        if "REFUSED" in seen:
+            self._robot_answer = None
+            self._say(f"the robot refused the path: {link.status_text}", is_error=True)
+        elif seen & {"ACCEPTED", "MOVING", "DONE"}:
+            self._robot_answer = None
+            self._say(
+                f"the robot at {link.host}:{link.port} accepted the path ({len(path.poses)} poses) "
+                f"{1000 * (time.perf_counter() - sent_at):.0f} ms after sending began"
+            )
+        elif not link.is_open:
+            self._robot_answer = None
+            self._say(link.status_text, is_error=True)
+        elif time.perf_counter() - sent_at > timeout_s:
+            self._robot_answer = None
+            self._say(
+                f"the robot at {link.host}:{link.port} did not accept the path within {timeout_s:g} s "
+                f"({link.status_text}); the connection was closed",
+                is_error=True,
+            )
+            self._drop_robot("no answer to the path")
+
     def stop_robot(self):
-        """Tell the robot to stop where it is."""
+        """Tell the robot to stop where it is (a path not wholly sent yet is cancelled)."""
         self._require("stop_robot")
         try:
             self.robot.stop()
         except OSError as error:
             raise WorkflowError(str(error)) from None
+        self._robot_answer = None
         self._say("STOP sent to the robot")
 
     def _connect_robot(self, host, port):
@@ -743,10 +797,11 @@ class NavigationController:
 
     def _drop_robot(self, why):
         """Stop the robot and close the link (a navigation that goes away must not leave the robot moving)."""
+        self._robot_answer = None
         if self.robot is None:
             return
         try:
-            if self.robot.connected and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
+            if self.robot.is_open and self.robot.state in ("SENT", "ACCEPTED", "MOVING"):
                 self.robot.stop()
                 logger.warning("robot stopped: %s", why)
         except OSError:
@@ -802,11 +857,9 @@ class NavigationController:
         link = self.robot
         if link is None:
             return {"robot": "", "robot_progress": None}
-        try:
-            link.poll()
-        except OSError as error:
-            logger.warning("robot link: %s", error)
         words = {
+            "CONNECTING": "connecting",
+            "CONNECTED": "connected",
             "SENT": "path sent, waiting for its answer",
             "ACCEPTED": "path accepted",
             "MOVING": f"moving: pose {link.passed} of {link.path_size}",
@@ -819,10 +872,17 @@ class NavigationController:
 
     # -- 8. save -------------------------------------------------------------------------------------------
     def save(self, path):
-        """Save the scene and its data as ``path`` (.mrml), for plain Python and the browser view; returns the files
-        written (the scene first)."""
-        written = self.steps.save(path)
-        self._say(f"scene saved: {path} and {len(written) - 1} data files")
+        """Save the scene and every node's data as ``path``: a ``.mrb`` bundle, or a ``.mrml`` scene with its data
+        files beside it (``NavigationLogic.save``); returns the files written (the scene first). Every shell saves
+        through here, the Slicer module included."""
+        try:
+            written = self.steps.save(path)
+        except ValueError as error:
+            raise WorkflowError(str(error)) from None
+        if len(written) == 1:
+            self._say(f"scene saved with all its data: {path}")
+        else:
+            self._say(f"scene saved: {path} and {len(written) - 1} data files")
         return written
 
 

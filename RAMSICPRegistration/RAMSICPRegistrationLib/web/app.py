@@ -9,7 +9,8 @@ tip (``scene_display``).
 
 The event loop (asyncio, trame's) does everything in one thread, as Slicer's GUI thread does: it polls the
 receiver every ``POLL_INTERVAL_S`` (new poses reach the MRML nodes, the controller and the displayable managers,
-which ask trame-rca for a render), and refreshes the panel every ``PANEL_INTERVAL_S``.
+which ask trame-rca for a render) and services the robot link (``controller.service()``), and refreshes the panel
+every ``PANEL_INTERVAL_S``.
 
 The page can open no file: it has no path input and no upload; the scene is saved into the output folder named
 on the command line, in a new sub-folder per save.
@@ -334,6 +335,7 @@ class NavigationWebApp:
         while True:
             try:
                 self.bridge.poll()
+                self.controller.service()  # the robot link: its reports are read whether the page looks or not
                 now = time.monotonic()
                 if self._tip_moved and now - last_follow >= self.follow_interval_s:
                     self._follow_tip()
