@@ -9,8 +9,10 @@ poses come from, so this module, not ``igtl_server``, imports the replay and the
 import errno
 import logging
 import math
+import signal
 import socket
 import sys
+import threading
 from pathlib import Path
 
 from RAMSICPRegistrationLib.io.command_line import EXIT_BAD_INPUT, OneLineParser
@@ -142,8 +144,20 @@ def _listen(host, port):
         raise ValueError(f"cannot serve on {host}:{port} ({error.strerror or error})") from None
 
 
+def _stop_on_terminate():
+    """SIGTERM (a shell stopping the server: ``tracker_process.TrackerProcess.stop``, ``kill``) ends the server as
+    Ctrl-C does, closing the tracker and the clients, instead of killing it mid-frame."""
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():  # Python allows handlers in the main thread only
+        signal.signal(signal.SIGTERM, interrupt)
+
+
 def main(argv=None):
     """``ramsicp-tracker-server (--ndi HOST[:PORT] | --serial DEV | --simulate | --replay FILE)``."""
+    _stop_on_terminate()
     arguments = _parser().parse_args(argv)
     try:
         _check_arguments(arguments)
