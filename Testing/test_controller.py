@@ -300,6 +300,70 @@ def test_process_ct_refuses_a_second_run_while_one_is_going(scene, tibia_phantom
     controller.close()
 
 
+def test_a_ct_under_a_linear_transform_gives_its_ipc_and_marker_centres_where_slicer_shows_it(scene, tibia_phantom):
+    """The CT sits under a parent transform (a registration done earlier, a manual alignment): Slicer shows it
+    moved, so the IPC and the marker centres must come out moved too, in world RAS."""
+    from conftest import random_transform
+
+    volume, truth = tibia_phantom
+    controller = NavigationController(scene)
+    moved = random_transform(np.random.default_rng(24), 40.0, 80.0)
+    parent = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "CTToWorld")
+    set_matrix(parent, moved)
+    ct = mrml_nodes.volume_node(scene, volume, "CT")
+    ct.SetAndObserveTransformNodeID(parent.GetID())
+    controller.parameters.ctVolume = ct
+    image = controller.run("process_ct")
+    assert image is not None and image.warnings == (), controller.status().message
+    centres = mrml_nodes.fiducial_positions(image.markers_image)
+    np.testing.assert_allclose(centres, apply_transform(moved, truth.marker_centres), atol=0.1)
+    plain = NavigationController(headless_scene())  # the same CT, not moved: its IPC, moved by hand, is the answer
+    plain.parameters.ctVolume = mrml_nodes.volume_node(plain.scene, volume, "CT")
+    expected = apply_transform(moved, _model_points(plain.run("process_ct").ipc_model))
+    np.testing.assert_allclose(_model_points(image.ipc_model), expected, rtol=0, atol=1e-6)
+    controller.close()
+    plain.close()
+
+
+def _model_points(model_node):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    return vtk_to_numpy(model_node.GetPolyData().GetPoints().GetData()).astype(np.float64)
+
+
+def test_a_ct_under_a_non_linear_transform_is_refused_with_what_to_do(scene, tibia_phantom):
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonTransforms import vtkThinPlateSplineTransform
+
+    controller = NavigationController(scene)
+    warp = vtkThinPlateSplineTransform()
+    source, target = vtkPoints(), vtkPoints()
+    for point, shift in (
+        ((0, 0, 0), (0, 0, 0)),
+        ((100, 0, 0), (3, 0, 0)),
+        ((0, 100, 0), (0, 0, 0)),
+        ((0, 0, 100), (0, 2, 0)),
+    ):
+        source.InsertNextPoint(point)
+        target.InsertNextPoint(np.add(point, shift))
+    warp.SetSourceLandmarks(source)
+    warp.SetTargetLandmarks(target)
+    warp.SetBasisToR()
+    parent = scene.AddNewNodeByClass("vtkMRMLTransformNode", "Warp")
+    parent.SetAndObserveTransformToParent(warp)
+    assert not parent.IsTransformToWorldLinear()
+    ct = mrml_nodes.volume_node(scene, tibia_phantom[0], "CT")
+    ct.SetAndObserveTransformNodeID(parent.GetID())
+    controller.parameters.ctVolume = ct
+    before = scene.GetNumberOfNodes()
+    assert controller.run("process_ct") is None and scene.GetNumberOfNodes() == before
+    assert controller.status().message == (
+        "volume node 'CT' is under the non-linear transform 'Warp'; harden the transform on the CT (Data module: "
+        "right-click the CT, 'Harden transform') or take the CT out of it, so that one matrix places its voxels"
+    )
+    controller.close()
+
+
 def test_every_action_has_an_availability_and_run_refuses_unknown_ones(scene):
     controller = NavigationController(scene)
     assert set(controller.availability()) == set(ACTIONS)

@@ -97,6 +97,37 @@ def test_step4_excluding_a_point_reruns_without_it(workflow):
     logic.set_included(7, True)
 
 
+def untick_in_slicers_table_view(table_node, row, column_name, checked):
+    """What qMRMLTableModel::updateMRMLFromItem does when the surgeon clicks a tick box in a vtkBitArray column
+    (Slicer v5.6.0-v5.10.0, Libs/MRML/Widgets/qMRMLTableModel.cxx): it writes the item's Qt::CheckState (0
+    unchecked, 2 checked) as a vtkVariant into the cell, then marks the column and the table modified."""
+    from vtkmodules.vtkCommonCore import vtkVariant
+
+    table = table_node.GetTable()
+    column = next(index for index in range(table.GetNumberOfColumns()) if table.GetColumnName(index) == column_name)
+    table.SetValue(row, column, vtkVariant(2 if checked else 0))
+    table.GetColumn(column).Modified()
+    table.Modified()
+
+
+def test_step4_the_include_column_is_tick_boxes_and_unticking_one_leaves_it_out(workflow):
+    """Slicer's table view shows tick boxes only for a vtkBitArray column; a click writes 0 or 2 into it."""
+    controller = workflow["controller"]
+    table_node = controller.parameters.residualTable
+    include = table_node.GetTable().GetColumnByName("include")
+    assert include.IsA("vtkBitArray") and include.GetNumberOfTuples() == 40
+    assert all(include.GetValue(row) == 1 for row in range(40))
+    untick_in_slicers_table_view(table_node, 12, "include", checked=False)
+    result = controller.run("register")
+    assert len(result.residuals_mm) == 39
+    table = controller.parameters.residualTable.GetTable()
+    assert np.isnan(table.GetColumnByName("residual_mm").GetValue(12))
+    assert table.GetColumnByName("include").IsA("vtkBitArray") and table.GetColumnByName("include").GetValue(12) == 0
+    untick_in_slicers_table_view(table_node, 12, "include", checked=True)
+    assert table.GetColumnByName("include").GetValue(12) == 1  # Qt::Checked (2) stored as a bit
+    assert len(controller.run("register").residuals_mm) == 40
+
+
 def test_step5_tip_to_surface_distance(workflow):
     logic, nodes, patient = workflow["logic"], workflow["nodes"], workflow["patient"]
     on_bone = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image[:1])[0]
@@ -145,6 +176,95 @@ def test_step7_save_and_reload_reproduce_the_registration(workflow, tmp_path):
     np.testing.assert_allclose(result.reference_to_image, before.reference_to_image, rtol=0, atol=1e-9)
     assert again.parameter_node.GetParameter("Method") == DEFAULT_METHOD
     assert again.parameters.referenceToImage.GetName() == "ReferenceToImage"  # the references survive a reload
+
+
+def _node_data(node):
+    """What a node holds, as arrays and text, for comparing a scene with its reloaded copy."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    if node.IsA("vtkMRMLTransformNode"):
+        return {"matrix": matrix_of(node)}
+    if node.IsA("vtkMRMLMarkupsNode"):
+        count = node.GetNumberOfControlPoints()
+        labels = [node.GetNthControlPointLabel(index) for index in range(count)]
+        return {"positions": mrml_nodes.fiducial_positions(node), "labels": labels}
+    if node.IsA("vtkMRMLModelNode"):
+        data = node.GetPolyData()
+        return {"points": vtk_to_numpy(data.GetPoints().GetData()).astype(np.float64), "cells": data.GetNumberOfCells()}
+    if node.IsA("vtkMRMLTableNode"):
+        table = node.GetTable()
+        columns = [table.GetColumn(index) for index in range(table.GetNumberOfColumns())]
+        return {
+            column.GetName(): (
+                column.GetDataTypeAsString(),
+                [table.GetValue(row, index).ToString() for row in range(table.GetNumberOfRows())],
+            )
+            for index, column in enumerate(columns)
+        }
+    if node.IsA("vtkMRMLScalarVolumeNode"):
+        from RAMSICPRegistrationLib.image.volume_io import volume_from_node
+
+        volume = volume_from_node(node)
+        return {"voxels": volume.voxels, "ijk_to_ras": volume.ijk_to_ras}
+    if node.IsA("vtkMRMLSegmentationNode"):
+        segmentation, found = node.GetSegmentation(), {}
+        for index in range(segmentation.GetNumberOfSegments()):
+            segment_id = segmentation.GetNthSegmentID(index)
+            segment = segmentation.GetSegment(segment_id)
+            image = node.GetBinaryLabelmapInternalRepresentation(segment_id)
+            voxels = vtk_to_numpy(image.GetPointData().GetScalars())
+            found[segment.GetName()] = int((voxels == segment.GetLabelValue()).sum())
+        return found
+    return None
+
+
+def _assert_same(original, reloaded, path):
+    for key, value in original.items():
+        if isinstance(value, np.ndarray):
+            np.testing.assert_allclose(reloaded[key], value, rtol=0, atol=1e-6, err_msg=f"{path}: {key}")
+        else:
+            assert reloaded[key] == value, f"{path}: {key}"
+
+
+@pytest.mark.parametrize("suffix", [".mrb", ".mrml"])
+def test_step7_the_modules_save_reloads_every_node_with_its_data(workflow, tmp_path, suffix):
+    """The Slicer module saves through the controller (``run('save', path)``): as one .mrb (Slicer's own
+    vtkMRMLScene::WriteToMRB) or as .mrml with its data files. Read back as Slicer reads them (ReadFromMRB, or
+    the scene and its storage nodes), every node the session made is there with its data: the CT, the
+    segmentation's segments and voxels, the IPC's points, every markups point and label (probe points, marker
+    centres, targets), every matrix, the residual table with its tick-box column."""
+    controller = workflow["controller"]
+    scene = workflow["scene"]
+    saved = {}
+    for index in range(scene.GetNumberOfNodes()):
+        node = scene.GetNthNode(index)
+        data = _node_data(node)
+        if data is not None and not node.GetHideFromEditors():
+            saved[(node.GetClassName(), node.GetName())] = data
+    kinds = {kind for kind, _ in saved}
+    assert {"vtkMRMLScalarVolumeNode", "vtkMRMLSegmentationNode", "vtkMRMLModelNode", "vtkMRMLTableNode"} <= kinds
+    assert {"vtkMRMLMarkupsFiducialNode", "vtkMRMLLinearTransformNode"} <= kinds
+    path = tmp_path / f"session{suffix}"
+    written = controller.run("save", path)
+    assert written is not None and written[0] == path, controller.status().message
+    reloaded = load_scene(headless_scene(), path)
+    for (kind, name), data in saved.items():
+        node = reloaded.GetFirstNode(name, kind, None, False)
+        assert node is not None and node.GetClassName() == kind, f"{path}: {kind} {name!r} is missing"
+        _assert_same(data, _node_data(node), f"{path}: {name}")
+    assert reloaded.GetFirstNodeByName("RegistrationResiduals").GetTable().GetColumnByName("include").IsA("vtkBitArray")
+
+
+def test_saving_somewhere_wrong_is_a_message(workflow, tmp_path):
+    controller = workflow["controller"]
+    assert controller.run("save", tmp_path / "session.txt") is None
+    assert controller.status().message == (
+        f"{tmp_path / 'session.txt'}: give a file name ending in .mrb (one file) or .mrml (the scene and its data "
+        "files beside it)"
+    )
+    (tmp_path / "folder.mrb").mkdir()
+    assert controller.run("save", tmp_path / "folder.mrb") is None
+    assert controller.status().message == f"{tmp_path / 'folder.mrb'} is a folder; give a file name ending in .mrb"
 
 
 def test_bad_nodes_and_inputs_say_what_to_do(workflow):

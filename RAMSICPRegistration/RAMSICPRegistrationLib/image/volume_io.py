@@ -128,7 +128,12 @@ def load_volume(source):
 
 
 def volume_from_node(node):
-    """CTVolume from a Slicer ``vtkMRMLScalarVolumeNode`` (real MRML; its voxels are copied)."""
+    """CTVolume from a Slicer ``vtkMRMLScalarVolumeNode`` (real MRML; its voxels are copied), in world RAS.
+
+    The geometry is where Slicer shows the volume: its IJK-to-RAS matrix, with the linear transform it sits under
+    applied (``GetMatrixTransformToWorld`` of its parent transform node). A volume under a non-linear transform
+    is refused: its voxels no longer lie on a grid that one matrix describes.
+    """
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkCommonMath import vtkMatrix4x4
 
@@ -141,8 +146,23 @@ def volume_from_node(node):
     voxels = vtk_to_numpy(image.GetPointData().GetScalars()).reshape(dimensions[::-1]).transpose(2, 1, 0).copy()
     matrix = vtkMatrix4x4()
     node.GetIJKToRASMatrix(matrix)
-    ijk_to_ras = np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
+    ijk_to_ras = _array(matrix)
+    parent = node.GetParentTransformNode()
+    if parent is not None:
+        if not parent.IsTransformToWorldLinear():
+            raise ValueError(
+                f"volume node {node.GetName()!r} is under the non-linear transform {parent.GetName()!r}; harden "
+                "the transform on the CT (Data module: right-click the CT, 'Harden transform') or take the CT out "
+                "of it, so that one matrix places its voxels"
+            )
+        parent.GetMatrixTransformToWorld(matrix)
+        ijk_to_ras = _array(matrix) @ ijk_to_ras
     return check_volume(voxels, ijk_to_ras, name=f"volume node {node.GetName()!r}")
+
+
+def _array(matrix):
+    """A vtkMatrix4x4 as a (4, 4) array."""
+    return np.array([[matrix.GetElement(r, c) for c in range(4)] for r in range(4)])
 
 
 def save_nrrd(path, volume):

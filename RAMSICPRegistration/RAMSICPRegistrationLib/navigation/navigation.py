@@ -294,7 +294,10 @@ class NavigationLogic:
         table.GetTable().Modified()
 
     def _write_residual_table(self, ppc_node, ppc, residuals, include):
-        from vtkmodules.vtkCommonCore import vtkDoubleArray, vtkIntArray, vtkStringArray
+        """The ``RegistrationResiduals`` table: point label, x, y, z (reference, mm), residual (mm; NaN when left
+        out) and 'include', a ``vtkBitArray``: Slicer's table view (qMRMLTableModel) shows a bit column as tick
+        boxes and writes a click back into it; any other integer column shows as 0/1 text."""
+        from vtkmodules.vtkCommonCore import vtkBitArray, vtkDoubleArray, vtkStringArray
         from vtkmodules.vtkCommonDataModel import vtkTable
 
         table = vtkTable()
@@ -303,7 +306,7 @@ class NavigationLogic:
         columns = {name: vtkDoubleArray() for name in ("x", "y", "z", "residual_mm")}
         for name, array in columns.items():
             array.SetName(name)
-        included = vtkIntArray()
+        included = vtkBitArray()
         included.SetName("include")
         for row in range(len(ppc)):
             labels.InsertNextValue(ppc_node.GetNthControlPointLabel(row))
@@ -382,9 +385,26 @@ class NavigationLogic:
 
     # -- 7. save and reload --------------------------------------------------------------------------------
     def save(self, path):
-        """Save the scene as ``path`` (.mrml) with every node's data beside it; returns the files written."""
+        """Save the scene with every node's data; returns the files written (the scene first).
+
+        ``.mrb``: one Medical Reality Bundle, written by ``vtkMRMLScene::WriteToMRB``, the function Slicer's own
+        scene writer calls for .mrb (qSlicerSceneWriter::writeToMRB, Slicer 5.6 to 5.10). ``.mrml``: the scene file
+        with each node's data file beside it. (Slicer's writer for .mrml only commits the XML, so markups, models,
+        segmentations and tables would be lost; that is why the Slicer module saves through here.)
+        """
         path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".mrb", ".mrml"):
+            raise ValueError(
+                f"{path}: give a file name ending in .mrb (one file) or .mrml (the scene and its data files beside it)"
+            )
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder; give a file name ending in {suffix}")
         path.parent.mkdir(parents=True, exist_ok=True)
+        if suffix == ".mrb":
+            if not self.scene.WriteToMRB(str(path)):
+                raise RuntimeError(f"writing the scene bundle {path} failed; check that the folder is writable")
+            return [path]
         written = []
         for node in _storable_nodes(self.scene):
             if node.GetHideFromEditors() or not _has_data(node):
@@ -406,7 +426,14 @@ class NavigationLogic:
 
 
 def load_scene(scene, path):
-    """Read a scene saved by ``NavigationLogic.save`` into ``scene``, data included."""
+    """Read a scene saved by ``NavigationLogic.save`` (or by Slicer) into ``scene``, data included: a ``.mrb`` by
+    ``vtkMRMLScene::ReadFromMRB`` as Slicer reads it, a ``.mrml`` with its data files."""
+    path = Path(path)
+    if path.suffix.lower() == ".mrb":
+        _give_a_cache_directory(scene)
+        if not scene.ReadFromMRB(str(path)):
+            raise RuntimeError(f"{path}: cannot read the scene bundle")
+        return scene
     scene.SetURL(str(path))
     if not scene.Import():
         raise RuntimeError(f"{path}: cannot read the scene")
@@ -415,6 +442,25 @@ def load_scene(scene, path):
         if storage is not None and storage.GetFileName() and not storage.ReadData(node):
             raise RuntimeError(f"{path}: cannot read the data of {node.GetName()!r} from {storage.GetFileName()}")
     return scene
+
+
+def _give_a_cache_directory(scene):
+    """ReadFromMRB unpacks into the remote cache directory of the scene's data IO manager, which Slicer's
+    application sets up; a bare scene (slicer-core) gets one in a new temporary folder."""
+    manager = scene.GetDataIOManager()
+    cache = None if manager is None else manager.GetCacheManager()
+    if cache is not None and cache.GetRemoteCacheDirectory():
+        return
+    import tempfile
+
+    import slicer
+
+    manager = manager or slicer.vtkDataIOManager()
+    cache = cache or slicer.vtkCacheManager()
+    cache.SetRemoteCacheDirectory(tempfile.mkdtemp(prefix="ramsicp-mrb-"))
+    manager.SetCacheManager(cache)
+    scene.SetDataIOManager(manager)
+    scene.SetCacheManager(cache)
 
 
 def _paired_markers(markers_image_node, markers_patient_node):
