@@ -26,7 +26,7 @@ from OpenIGTLinkBridgeLib.bridge_controller import SOURCES, BridgeController
 POLL_INTERVAL_MS = 20
 
 #: PLACEHOLDER until publication: the same address as EXTENSION_HOMEPAGE in the top-level CMakeLists.txt.
-DOCUMENTATION_URL = "https://example.invalid/RAMSICPNavigator#live-tracker-feed"
+DOCUMENTATION_URL = "https://example.invalid/SlicerRAMSICPNavigator#live-tracker-feed"
 
 #: Push button -> controller action.
 BUTTON_ACTIONS = {

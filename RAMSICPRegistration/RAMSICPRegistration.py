@@ -40,7 +40,7 @@ from RAMSICPRegistrationLib.core.tool_path import TOOLS
 from RAMSICPRegistrationLib.navigation.controller import Cancelled, NavigationController
 
 #: PLACEHOLDER until publication: the same address as EXTENSION_HOMEPAGE in the top-level CMakeLists.txt.
-DOCUMENTATION_URL = "https://example.invalid/RAMSICPNavigator#in-3d-slicer"
+DOCUMENTATION_URL = "https://example.invalid/SlicerRAMSICPNavigator#in-3d-slicer"
 
 #: Push button -> controller action it runs (buttons that need more than a click have their own slot).
 BUTTON_ACTIONS = {
