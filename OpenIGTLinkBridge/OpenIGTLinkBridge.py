@@ -3,9 +3,14 @@
 A thin shell over ``OpenIGTLinkBridgeLib.bridge_controller.BridgeController`` (Qt-free, tested on slicer-core): a
 timer asks it to poll, labels show each tool's status (valid, missing, stale, disconnected), and
 ``ProbeToReference`` (paper eq. 2) is kept up to date for the RAMSICPRegistration module. The tracker can be an
-OpenIGTLink server already running (PLUS, ``ramsicp-tracker-server``) or be started here.
+OpenIGTLink server already running (PLUS, ``ramsicp-tracker-server``) or be started here: then
+``ramsicp-tracker-server`` runs in its own process with Slicer's Python (``PythonSlicer``, as Slicer's
+``slicer.util._executePythonModule`` finds it), its log shown in the module, because threads of Slicer's own
+process only advance while its GUI thread runs Python (PythonQt keeps the lock while Qt's event loop waits).
 """
 
+import os
+import shutil
 from typing import Annotated
 
 import qt
@@ -98,6 +103,7 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         if self._timer is not None:
             self._timer.stop()
         self.removeObservers()
+        self.setParameterNode(None)
         if self.logic is not None:
             self.logic.controller.close()
 
@@ -105,7 +111,7 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
         self.initializeParameterNode()
 
     def exit(self):
-        self.setParameterNode(None)
+        pass  # the GUI stays bound to the parameter node: binding again at each enter() would add an observer
 
     def onSceneStartClose(self, caller, event):
         self.setParameterNode(None)
@@ -115,7 +121,10 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
             self.initializeParameterNode()
 
     def initializeParameterNode(self):
-        self.setParameterNode(self.logic.getParameterNode())
+        """Bind the GUI to the logic's parameter-node wrapper, once per parameter node (see the logic)."""
+        parameterNode = self.logic.getParameterNode()
+        if parameterNode is not self._parameterNode:
+            self.setParameterNode(parameterNode)
 
     def setParameterNode(self, inputParameterNode):
         if self._parameterNode:
@@ -177,21 +186,36 @@ class OpenIGTLinkBridgeWidget(ScriptedLoadableModuleWidget, VTKObservationMixin)
             self.ui.recordButton.blockSignals(wasBlocked)
         self.ui.messageLabel.text = status.message
         self.ui.messageLabel.styleSheet = "color: #c62828" if status.message_is_error else ""
+        log = "\n".join(status.tracker_log)
+        if self.ui.trackerLogTextEdit.plainText != log:  # set only when it changed: keeps the reader's scroll
+            self.ui.trackerLogTextEdit.plainText = log
 
 
 class OpenIGTLinkBridgeLogic(ScriptedLoadableModuleLogic):
-    """Facade: the module's parameter node and the Qt-free controller on Slicer's scene."""
+    """Facade: the module's parameter node and the Qt-free controller on Slicer's scene. A tracker started here
+    runs as ``ramsicp-tracker-server`` with ``PythonSlicer`` (on the PATH Slicer's launcher sets), logging into
+    Slicer's temporary folder."""
 
     def __init__(self):
         ScriptedLoadableModuleLogic.__init__(self)
-        self.controller = BridgeController(slicer.mrmlScene)
+        self.controller = BridgeController(
+            slicer.mrmlScene,
+            tracker_python=shutil.which("PythonSlicer") or "PythonSlicer",
+            log_directory=os.path.join(slicer.app.temporaryPath, "RAMSICPNavigator-tracker"),
+        )
+        self._parameterNode = None
 
     def getParameterNode(self):
-        return OpenIGTLinkBridgeParameterNode(super().getParameterNode())
+        """The one wrapper of the scene's parameter node (a new one only when the node changed: a scene close):
+        Slicer's parameterNodeWrapper adds an observer at every ``connectGui`` that it never removes."""
+        node = super().getParameterNode()
+        if self._parameterNode is None or self._parameterNode.parameterNode is not node:
+            self._parameterNode = OpenIGTLinkBridgeParameterNode(node)
+        return self._parameterNode
 
 
 class OpenIGTLinkBridgeTest(ScriptedLoadableModuleTest):
-    """Simulator -> driver -> server -> this module's controller and receiver, inside Slicer."""
+    """Simulator -> driver -> server (its own process, PythonSlicer) -> this module's controller and receiver."""
 
     def runTest(self):
         slicer.mrmlScene.Clear()
@@ -201,12 +225,10 @@ class OpenIGTLinkBridgeTest(ScriptedLoadableModuleTest):
         import time
 
         logic = OpenIGTLinkBridgeLogic()
-        parameters = logic.controller.parameters
-        parameters.trackerSource = "simulator"
-        parameters.port = 18999
+        logic.controller.parameters.trackerSource = "simulator"
         try:
-            logic.controller.start_tracker()
-            end = time.monotonic() + 3.0
+            logic.controller.start_tracker(port=0)  # a free port: a fixed one may be taken on a test machine
+            end = time.monotonic() + 30.0  # the tracker process starts (Python, numpy, the simulator) first
             while time.monotonic() < end and dict(logic.controller.status().tools)["ProbeToTracker"] != "valid":
                 logic.controller.poll()
                 slicer.app.processEvents()

@@ -3,9 +3,12 @@
 A thin Slicer shell over ``RAMSICPRegistrationLib.navigation.controller.NavigationController``, which holds every
 piece of behaviour (MRML event observers, tracking state, pivot recording, auto-collect, registration, scene-close
 clean-up) and is tested on slicer-core. The widget only binds the GUI to the parameter node, forwards clicks with
-``controller.run(...)`` and shows what the controller reports, the live guidance of the cut included. Supported:
-Slicer 5.6, 5.8 and 5.10 (every Slicer API used here is checked against their sources by
-``Testing/test_module_files.py``).
+``controller.run(...)`` and shows what the controller reports, the live guidance of the cut included. The logic
+owns the one parameter-node wrapper (Slicer's parameterNodeWrapper adds an observer at every ``connectGui`` that it
+never removes, so the GUI is bound once per parameter node, not at every ``enter()``) and a timer that services the
+robot link for as long as the module lives, whichever module is shown. Saving goes through the controller (a .mrb,
+or a .mrml with its data files). Supported: Slicer 5.6, 5.8 and 5.10 (every Slicer API used here is checked
+against their sources by ``Testing/test_module_files.py``).
 """
 
 import os
@@ -67,6 +70,12 @@ ENABLED_BY = {
     "stopRobotButton": "stop_robot",
 }
 REFRESH_INTERVAL_MS = 200
+#: The logic's timer: how often the robot link is serviced (its reports read), whether or not the module is shown.
+ROBOT_SERVICE_INTERVAL_MS = 50
+#: Collects a point while the module is shown. Qt reads Ctrl as Cmd on macOS: Cmd+Shift+C there. Free in Slicer
+#: 5.6-5.10 and in Windows', macOS' and GNOME's/KDE's own shortcuts (Ctrl+Space, the earlier choice, is Spotlight on
+#: macOS and switches the input method on Linux and Windows); checked by Testing/test_module_files.py.
+COLLECT_SHORTCUT = "Ctrl+Shift+C"
 ON_PLAN_STYLE = "color: #ffffff; background-color: #2e7d32; font-size: 15px; font-weight: bold; padding: 4px"
 OFF_PLAN_STYLE = "color: #ffffff; background-color: #c62828; font-size: 15px; font-weight: bold; padding: 4px"
 
@@ -176,25 +185,28 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
             self._timer.stop()
         self.uninstallShortcut()
         self.removeObservers()
+        self.setParameterNode(None)
         if self.logic is not None:
-            self.logic.controller.close()
+            self.logic.close()
 
     def enter(self):
         self.initializeParameterNode()
         self.installShortcut()
         self._timer.start()
+        self.refresh()
 
     def exit(self):
+        # The GUI stays bound to the parameter node (binding again at each enter() would add an observer each
+        # time), and the logic's timer keeps servicing the robot link: only the display refresh stops.
         self._timer.stop()
         self.uninstallShortcut()
-        self.setParameterNode(None)
 
     def installShortcut(self):
-        """Ctrl+Space collects a point while this module is shown (removed on exit, as Segment Editor does)."""
+        """COLLECT_SHORTCUT collects a point while this module is shown (removed on exit, as Segment Editor does)."""
         mainWindow = slicer.util.mainWindow()
         if self._shortcut is not None or mainWindow is None:  # no main window with --no-main-window
             return
-        self._shortcut = qt.QShortcut(qt.QKeySequence("Ctrl+Space"), mainWindow)
+        self._shortcut = qt.QShortcut(qt.QKeySequence(COLLECT_SHORTCUT), mainWindow)
         self._shortcut.connect("activated()", self.onCollectShortcut)
 
     def uninstallShortcut(self):
@@ -214,7 +226,11 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
             self.initializeParameterNode()
 
     def initializeParameterNode(self):
-        self.setParameterNode(self.logic.getParameterNode())
+        """Bind the GUI to the logic's parameter-node wrapper, once per parameter node (a new one after a scene
+        close): the same wrapper comes back on every enter(), and is not bound again."""
+        parameterNode = self.logic.getParameterNode()
+        if parameterNode is not self._parameterNode:
+            self.setParameterNode(parameterNode)
 
     def setParameterNode(self, inputParameterNode):
         if self._parameterNode:
@@ -235,6 +251,9 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         dialog = slicer.util.createProgressDialog(
             parent=slicer.util.mainWindow(), maximum=3, windowTitle=_("RAMSICP: image side")
         )
+        # createProgressDialog leaves the dialog modeless (Slicer 5.6-5.10), and the callback below processes
+        # events: without this a second click could start a second run (the controller refuses it anyway).
+        dialog.setWindowModality(qt.Qt.WindowModal)
 
         def progress(step, done, total):
             dialog.labelText = step
@@ -258,13 +277,16 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.run("set_hold_still_collect", enabled)
 
     def onSave(self):
+        """Save through the controller: Slicer's own writer for .mrml writes only the scene's XML (the points, the
+        IPC, the segmentation and the residual table would be lost)."""
         path = qt.QFileDialog.getSaveFileName(
-            None, _("Save the navigation scene"), "", _("Medical Reality Bundle (*.mrb);;MRML scene (*.mrml)")
+            None,
+            _("Save the navigation scene"),
+            "",
+            _("Medical Reality Bundle (*.mrb);;MRML scene and its data files (*.mrml)"),
         )
         if path:
-            with slicer.util.tryWithErrorDisplay(_("Saving failed."), waitCursor=True):
-                if not slicer.util.saveScene(path):
-                    raise RuntimeError(_("Slicer could not write {path}").format(path=path))
+            self.run("save", path)
 
     def onSavePlan(self):
         path = qt.QFileDialog.getSaveFileName(None, _("Save the osteotomy plan"), "plan.json", _("JSON (*.json)"))
@@ -338,7 +360,9 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
 
 
 class RAMSICPRegistrationLogic(ScriptedLoadableModuleLogic):
-    """Facade: the module's parameter node and the Qt-free controller on Slicer's scene."""
+    """Facade: the module's parameter node and the Qt-free controller on Slicer's scene, and the timer that
+    services the robot link (reads its reports, judges its answer) for as long as the module lives: a widget's
+    timer stops when the surgeon switches module, and a robot controller drops a client that stops reading."""
 
     def __init__(self):
         ScriptedLoadableModuleLogic.__init__(self)
@@ -346,9 +370,23 @@ class RAMSICPRegistrationLogic(ScriptedLoadableModuleLogic):
         self.controller = NavigationController(
             slicer.mrmlScene, autosave_directory=autosave, robot_link_factory=RobotLink
         )
+        self._parameterNode = None
+        self._serviceTimer = qt.QTimer()
+        self._serviceTimer.setInterval(ROBOT_SERVICE_INTERVAL_MS)
+        self._serviceTimer.connect("timeout()", self.controller.service)
+        self._serviceTimer.start()
 
     def getParameterNode(self):
-        return RAMSICPRegistrationParameterNode(super().getParameterNode())
+        """The one wrapper of the scene's parameter node (a new one only when the node changed: a scene close)."""
+        node = super().getParameterNode()
+        if self._parameterNode is None or self._parameterNode.parameterNode is not node:
+            self._parameterNode = RAMSICPRegistrationParameterNode(node)
+        return self._parameterNode
+
+    def close(self):
+        """Stop the timer and the controller (which stops a moving robot): the module is going away."""
+        self._serviceTimer.stop()
+        self.controller.close()
 
 
 class RAMSICPRegistrationTest(ScriptedLoadableModuleTest):

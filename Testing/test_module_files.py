@@ -13,7 +13,13 @@
   v5.8.1 and v5.10.0 (see ``Testing/Data/README.md``);
 * the ``.ui`` files declare their custom widgets (containers flagged), connect each MRML widget to
   ``mrmlSceneChanged``, give every control a tooltip and keep labelmaps out of the CT selector;
-* CMake lists every file the libraries need when installed, and a Slicer-style install works from those alone.
+* CMake lists every file the libraries need when installed, and a Slicer-style install works from those alone;
+* what only Slicer's own process shows (issue 24), checked against facts taken from Slicer's sources at the same
+  tags: one parameter-node wrapper per node, bound to the GUI once (``connectGui`` adds an observer that
+  ``disconnectGui`` never removes); the robot link serviced by a timer the logic owns; saving through the
+  controller (Slicer's .mrml writer only commits the XML); a modal CT progress dialog (``createProgressDialog``
+  leaves it modeless); a collect shortcut free in Slicer and in the operating systems; the tracker's Python found
+  as Slicer finds it; every MRML method the changes call declared in every release.
 """
 
 import ast
@@ -157,7 +163,7 @@ def test_every_widget_the_code_uses_is_in_the_ui(name):
 def _connections(tree, widgets):
     """(widget class, signal) of every ``<receiver>.connect("signal", ...)`` in the module's code."""
     tables = {table: _module_constant(tree, table) or {} for table in ("BUTTON_ACTIONS",)}
-    owned = {"self._timer": "QTimer", "self._shortcut": "QShortcut"}
+    owned = {"self._timer": "QTimer", "self._serviceTimer": "QTimer", "self._shortcut": "QShortcut"}
     found = []
     for node in ast.walk(tree):
         if not (isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "connect" and node.args):
@@ -378,3 +384,133 @@ print(sorted(lib.__all__) == lib.__all__ and all(getattr(lib, name) is not None 
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "True"
+
+
+# -- what only Slicer's own process shows (issue 24) ---------------------------------------------------------
+def _method(tree, class_name, method):
+    return next(node for node in _classes(tree)[class_name].body if getattr(node, "name", None) == method)
+
+
+def _facts(tag):
+    return SLICER_API["tags"][tag]["facts"]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_one_parameter_node_wrapper_is_bound_to_the_gui_once_per_parameter_node(name):
+    """Slicer's parameterNodeWrapper adds an observer to the parameter node at every ``connectGui`` and
+    ``disconnectGui`` does not remove it (v5.6.0 to v5.10.0): the logic keeps one wrapper while the node is the
+    same, the widget binds it only when it is a different one, and leaving the module does not unbind it."""
+    for tag in SUPPORTED_TAGS:
+        assert _facts(tag)["connectGuiAddsAnObserver"] and not _facts(tag)["disconnectGuiRemovesIt"]
+        assert "parameterNode" in _facts(tag)["parameterNodeWrapperInstance"]
+    tree = _tree(name)
+    logic = ast.unparse(_method(tree, f"{name}Logic", "getParameterNode"))
+    guard = "if self._parameterNode is None or self._parameterNode.parameterNode is not node:"
+    assert guard in logic and logic.count(f"{name}ParameterNode(") == 1
+    assert logic.index(guard) < logic.index(f"{name}ParameterNode(")
+    initialize = ast.unparse(_method(tree, f"{name}Widget", "initializeParameterNode"))
+    assert "if parameterNode is not self._parameterNode:" in initialize
+    assert "setParameterNode" not in ast.unparse(_method(tree, f"{name}Widget", "exit"))
+    widget = ast.unparse(_classes(tree)[f"{name}Widget"])
+    assert len(re.findall(r"\.connectGui\(", widget)) == 1
+    assert ".connectGui(self.ui)" in ast.unparse(_method(tree, f"{name}Widget", "setParameterNode"))
+
+
+def test_the_robot_link_is_serviced_by_a_timer_the_logic_owns():
+    """A widget's timer stops when the surgeon switches module (exit()); the robot controller drops a client that
+    has not read for 2 s, and the robot stops mid-cut. The logic's timer runs from its creation to close()."""
+    tree = _tree("RAMSICPRegistration")
+    logic = ast.unparse(_method(tree, "RAMSICPRegistrationLogic", "__init__"))
+    for line in (
+        "self._serviceTimer = qt.QTimer()",
+        "self._serviceTimer.setInterval(ROBOT_SERVICE_INTERVAL_MS)",
+        "self._serviceTimer.connect('timeout()', self.controller.service)",
+        "self._serviceTimer.start()",
+    ):
+        assert line in logic, line
+    assert _module_constant(tree, "ROBOT_SERVICE_INTERVAL_MS") <= 200
+    assert "_serviceTimer" not in ast.unparse(_classes(tree)["RAMSICPRegistrationWidget"])
+    assert "self._serviceTimer.stop()" in ast.unparse(_method(tree, "RAMSICPRegistrationLogic", "close"))
+    assert "self.logic.close()" in ast.unparse(_method(tree, "RAMSICPRegistrationWidget", "cleanup"))
+
+
+def test_the_module_saves_through_the_controller():
+    """Slicer's scene writer commits only the XML for .mrml and calls vtkMRMLScene::WriteToMRB for .mrb (v5.6.0
+    to v5.10.0): the module saves through the controller, whose save writes both with their data (tested in
+    test_navigation.py)."""
+    for tag in SUPPORTED_TAGS:
+        assert (_facts(tag)["sceneWriterMrml"], _facts(tag)["sceneWriterMrb"]) == ("Commit", "WriteToMRB")
+    save = ast.unparse(_method(_tree("RAMSICPRegistration"), "RAMSICPRegistrationWidget", "onSave"))
+    assert "self.run('save', path)" in save and "saveScene" not in save
+    assert "(*.mrb)" in save and "(*.mrml)" in save
+
+
+def test_the_ct_progress_dialog_is_modal():
+    """``slicer.util.createProgressDialog`` leaves the dialog modeless (v5.6.0 to v5.10.0) and the progress
+    callback processes events: the module makes it modal before the run starts."""
+    for tag in SUPPORTED_TAGS:
+        assert not _facts(tag)["createProgressDialogSetsModality"]
+    process = ast.unparse(_method(_tree("RAMSICPRegistration"), "RAMSICPRegistrationWidget", "onProcessCT"))
+    modal = "dialog.setWindowModality(qt.Qt.WindowModal)"
+    assert modal in process and process.index(modal) < process.index("self.run('process_ct'")
+
+
+def test_the_collect_shortcut_is_free_in_slicer_and_in_every_operating_system():
+    """Ctrl+Space was Spotlight on macOS (Qt reads Ctrl as Cmd there) and the input-method switch elsewhere."""
+    tree = _tree("RAMSICPRegistration")
+    shortcut = _module_constant(tree, "COLLECT_SHORTCUT")
+    assert "qt.QKeySequence(COLLECT_SHORTCUT)" in ast.unparse(
+        _method(tree, "RAMSICPRegistrationWidget", "installShortcut")
+    )
+    for tag in SUPPORTED_TAGS:
+        assert shortcut not in SLICER_API["tags"][tag]["shortcuts"], f"Slicer {tag} uses {shortcut}"
+        assert "Ctrl+Shift+Space" in SLICER_API["tags"][tag]["shortcuts"]  # the extraction found Slicer's own
+    systems = json.loads((ROOT / "Testing" / "Data" / "system_shortcuts.json").read_text())
+    for system in ("macOS", "Windows", "Linux"):
+        assert shortcut not in systems[system]["sequences"], f"{system} takes {shortcut}"
+    assert "Ctrl+Space" in systems["macOS"]["sequences"]  # the old choice: Spotlight
+    collect = next(w for w in _ui("RAMSICPRegistration").iter("widget") if w.get("name") == "collectButton")
+    texts = [prop.findtext("string") for prop in collect.findall("property")]
+    assert any(shortcut in text for text in texts) and not any("Ctrl+Space" in text for text in texts)
+
+
+def test_the_bridge_starts_the_tracker_with_slicers_python_and_its_self_test_takes_a_free_port():
+    """PythonSlicer, found as slicer.util._executePythonModule finds it (v5.6.0 to v5.10.0); the self-test asks
+    for any free port instead of a fixed one that may be taken."""
+    for tag in SUPPORTED_TAGS:
+        assert _facts(tag)["executePythonModuleFinds"] == 'shutil.which("PythonSlicer")'
+    tree = _tree("OpenIGTLinkBridge")
+    logic = ast.unparse(_method(tree, "OpenIGTLinkBridgeLogic", "__init__"))
+    assert "tracker_python=shutil.which('PythonSlicer')" in logic
+    self_test = ast.unparse(_classes(tree)["OpenIGTLinkBridgeTest"])
+    assert "start_tracker(port=0)" in self_test and not re.search(r"\b(1[0-9]{4}|[2-6][0-9]{4})\b", self_test)
+    assert "self.ui.trackerLogTextEdit.plainText" in ast.unparse(_classes(tree)["OpenIGTLinkBridgeWidget"])
+
+
+#: The MRML methods the libraries call that issue 24 added, by the class that declares them.
+MRML_METHODS = {
+    "vtkMRMLScene": ("WriteToMRB", "ReadFromMRB"),
+    "vtkMRMLTransformNode": ("IsTransformToWorldLinear", "GetMatrixTransformToWorld"),
+    "vtkMRMLTransformableNode": ("GetParentTransformNode",),
+}
+
+
+def test_every_mrml_method_the_libraries_call_for_saving_and_the_ct_geometry_exists_in_every_release():
+    library = "".join(
+        path.read_text()
+        for folder in ("RAMSICPRegistration", "OpenIGTLinkBridge")
+        for path in (ROOT / folder).rglob("*.py")
+    )
+    for cls, methods in MRML_METHODS.items():
+        for method in methods:
+            assert f".{method}(" in library, method
+            for tag in SUPPORTED_TAGS:
+                assert method in SLICER_API["tags"][tag]["mrml"][cls], f"{cls}::{method} not in Slicer {tag}"
+
+
+def test_the_residual_tables_include_column_is_the_kind_slicer_shows_as_tick_boxes():
+    for tag in SUPPORTED_TAGS:
+        assert _facts(tag)["tableViewTickBoxColumn"] == "vtkBitArray"
+        assert _facts(tag)["tableViewTickWrites"] == "vtkVariant(checked)"
+    navigation = (ROOT / "RAMSICPRegistration" / "RAMSICPRegistrationLib" / "navigation" / "navigation.py").read_text()
+    assert "included = vtkBitArray()" in navigation
