@@ -88,6 +88,18 @@ def test_transform_bytes_are_the_specifications_written_out_by_hand():
     np.testing.assert_array_equal(message.content, SPEC_MATRIX)
 
 
+def test_transforms_encoded_together_are_the_same_bytes_as_one_by_one(rng):
+    """The tool path's batch encoder (its CRC-64 of every body computed at once) against the per-message one."""
+    from conftest import random_transform
+
+    matrices = np.array([random_transform(rng) for _ in range(257)])
+    together = igtl.encode_transforms("PlanToolToRobotBase", matrices)
+    assert together == b"".join(igtl.encode_transform("PlanToolToRobotBase", matrix) for matrix in matrices)
+    assert igtl.encode_transforms("x", np.zeros((0, 4, 4))) == b""
+    with pytest.raises(ValueError, match="finite"):
+        igtl.encode_transforms("x", np.full((2, 4, 4), np.nan))
+
+
 def test_version_2_transform_bytes_are_the_specifications_written_out_by_hand():
     encoded = igtl.encode_transform(
         "StylusToTracker", SPEC_MATRIX, SPEC_TIMESTAMP_S, version=2, metadata={"TransformStatus": "OK"}, message_id=7

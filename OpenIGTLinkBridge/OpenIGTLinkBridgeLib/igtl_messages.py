@@ -110,6 +110,33 @@ def encode_transform(device, matrix, timestamp_s=0.0, version=1, metadata=None, 
     return _encode("TRANSFORM", device, struct.pack(">12f", *values), timestamp_s, version, metadata, message_id)
 
 
+def encode_transforms(device, matrices):
+    """TRANSFORM messages (header version 1, time stamp 0) of (N, 4, 4) matrices, all at once: the same bytes as
+    ``encode_transform`` for each matrix, with the CRC-64 of every body computed together (one numpy step per byte
+    position), so that a long tool path is encoded in a few milliseconds instead of 33 us a pose."""
+    matrices = np.asarray(matrices, dtype=np.float64)
+    if matrices.ndim != 3 or matrices.shape[1:] != (4, 4) or not np.isfinite(matrices).all():
+        raise ValueError(f"TRANSFORM {device!r}: expected finite (N, 4, 4) matrices, got shape {matrices.shape}")
+    encoded_device = device.encode("ascii")
+    if len(encoded_device) > 20:
+        raise ValueError(f"device name {device!r} is longer than OpenIGTLink's 20 characters")
+    count = len(matrices)
+    values = np.concatenate((matrices[:, :3, :3].transpose(0, 2, 1).reshape(count, 9), matrices[:, :3, 3]), axis=1)
+    bodies = values.astype(">f4").view(np.uint8).reshape(count, 48)
+    crc = np.zeros(count, dtype=np.uint64)
+    table = np.array(_TABLE, dtype=np.uint64)
+    for position in range(48):
+        crc = table[((crc >> np.uint64(56)) ^ bodies[:, position].astype(np.uint64)) & np.uint64(0xFF)] ^ (
+            crc << np.uint64(8)
+        )
+    header = _HEADER.pack(1, b"TRANSFORM", encoded_device, 0, 48, 0)[:-8]  # all but the CRC
+    messages = np.empty((count, _HEADER.size + 48), dtype=np.uint8)
+    messages[:, : _HEADER.size - 8] = np.frombuffer(header, dtype=np.uint8)
+    messages[:, _HEADER.size - 8 : _HEADER.size] = crc.astype(">u8").view(np.uint8).reshape(count, 8)
+    messages[:, _HEADER.size :] = bodies
+    return messages.tobytes()
+
+
 def encode_status(device, status, timestamp_s=0.0, version=1, metadata=None, message_id=0):
     """A STATUS message (code, subcode, error name, status string)."""
     body = struct.pack(">Hq20s", status.code, status.subcode, status.error_name.encode("ascii")[:20])

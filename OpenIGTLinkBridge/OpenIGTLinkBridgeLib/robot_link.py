@@ -68,7 +68,7 @@ def encode_path(poses, path_id):
     tag = f"{len(poses)} {path_id}"
     begin = igtl.encode_status(PATH_DEVICE, igtl.Status(1, 0, PATH_BEGIN, tag))
     end = igtl.encode_status(PATH_DEVICE, igtl.Status(1, 0, PATH_END, tag))
-    return begin + b"".join(igtl.encode_transform(PATH_DEVICE, pose) for pose in poses) + end
+    return begin + igtl.encode_transforms(PATH_DEVICE, poses) + end
 
 
 class PathAssembler:
