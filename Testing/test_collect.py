@@ -171,10 +171,10 @@ def test_the_real_water_tank_recording_holds_no_touch_and_its_lying_stylus_is_on
 
 
 def test_the_real_calibration_recording_holds_one_quarter_second_touch(tmp_path):
-    """PlusLibData's ReferenceToRAS calibration recording (15 Hz, the stylus moving about for 6 s): with the
-    defaults the tip stays at one point once, frames 47-51 (0.25 s within 1.5 mm, drifting 0.5 mm); every other slow
-    moment drifts 1.3-2.7 mm in a quarter second (the hand moving at 5-15 mm/s). The point is the mean of those
-    five tips (eq. 2 in numpy)."""
+    """PlusLibData's ReferenceToRAS calibration recording (15 Hz, the stylus moving about for 6 s, what it touched
+    unknown): with the defaults the tip stays at one point once, frames 47-51 (0.25 s within 1.5 mm, drifting
+    0.5 mm); every other slow moment drifts 1.3-2.7 mm in a quarter second (the hand moving at 5-15 mm/s). The point
+    is the mean of those five tips (eq. 2 in numpy)."""
     out, report = tmp_path / "points.csv", tmp_path / "touches.json"
     assert _collect(CALIBRATION, "--out", out, "--json", report) == 0
     (touch,) = json.loads(report.read_text())["touches"]

@@ -137,15 +137,24 @@ def find_recorded_touches(
     still_mm=DEFAULT_STILL_MM,
     still_s=DEFAULT_STILL_S,
     tip_error_mm=DEFAULT_TIP_ERROR_MM,
+    recording_tip=True,
 ):
     """The touches of ``tool``'s tip (``tip_mm`` in the tool's frame) in ``recording``, in reference coordinates.
-    ``tool`` None: ``choose_tool``."""
+    ``tool`` None: ``choose_tool``; ``recording_tip``: place them with the tip the recording's swivels agree on
+    (``core.touch.with_recording_tip``)."""
     HoldStillDetector(still_mm, still_s, tip_error_mm)  # refuses bad settings before any work
     tool = choose_tool(recording, reference) if tool is None else tool
     tip = _tip(tip_mm, tool)
     poses, valid = recorded_poses(recording, tool, reference)
     touches, recording_tip = find_pose_touches(
-        poses, tip, recording.timestamps_s, valid, still_mm=still_mm, still_s=still_s, tip_error_mm=tip_error_mm
+        poses,
+        tip,
+        recording.timestamps_s,
+        valid,
+        still_mm=still_mm,
+        still_s=still_s,
+        tip_error_mm=tip_error_mm,
+        recording_tip=recording_tip,
     )
     tips = poses[valid, :3, :3] @ tip + poses[valid, :3, 3]
     return RecordedTouches(touches, tips, np.flatnonzero(valid), len(recording.frames), tool, reference, recording_tip)

@@ -14,9 +14,10 @@ touch even with a tip miscalibrated by up to ``tip_error_mm`` (a tip 2.5 mm off 
 44 degree swivel, which a ball of 1 mm around the mean tip splits into several touches). Where the touch is, and
 whether it is a swivel (PLUS's test: a point 100 mm up the shaft moves 30 mm), is ``core.touch``'s.
 
-- **Landing**: frames of a run's first ``still_s`` that stop fitting once the run's point is known better (the tip
-  still landing, near the mean of the calibrated tips but not at the swivel's fixed point, which differs from it by
-  the tip's calibration error) are left out rather than ending the touch.
+- **Landing**: frames of a run's first ``LANDING_S`` that stop fitting once the run's point is known better (the
+  tip still landing: a decelerating approach, or a frame near the mean of the calibrated tips but not at the
+  swivel's fixed point, which differs from it by the tip's calibration error) are left out rather than ending the
+  touch.
 - **Glitches and gaps**: up to ``MAX_GLITCH_FRAMES`` consecutive frames off the point, followed by one on it, are
   left out of the touch (``dropped_frames``) instead of ending it; invalid frames neither end a touch nor count (the
   touch goes on if the tip is back at its point when tracking resumes).
@@ -47,6 +48,9 @@ DEFAULT_TIP_ERROR_MM = 5.0
 #: Fewest frames of a touch, and most consecutive frames off the point a touch survives.
 MIN_FRAMES = 3
 MAX_GLITCH_FRAMES = 2
+#: A run's frames of its first LANDING_S (s) that stop fitting as the run's point becomes known better may be left
+#: out (the tip still landing: a decelerating approach spends 0.1-0.4 s within 1.5 mm of its point).
+LANDING_S = 0.5
 #: The most (mm) a touch's tip may drift (its least-squares linear trend over the touch): a hand slowing down in
 #: the air, or a tip sliding, moves steadily; a tip held on a point only scatters.
 MAX_DRIFT_MM = 1.0
@@ -65,6 +69,7 @@ class _Run:
         self._rotations, self._translations = np.empty((64, 3, 3)), np.empty((64, 3))
         self.times, self.frames = [], []
         self.dropped = 0
+        self.started_s = None  # the time of the run's first frame, kept when landing frames are left out
 
     def __len__(self):
         return self.count
@@ -87,11 +92,12 @@ class _Run:
     def fits(self, rotation, translation, still_mm, tip_error_mm, landing_s):
         """Would every frame, this one included, lie within still_mm of the run's fixed point? Returns the new state
         (sums, frames of the run's start to leave out) when it would, else None. Frames of the run's first
-        ``landing_s`` may be left out for this one to fit (the module's docstring: landing)."""
+        ``landing_s`` (from its first frame, even one left out since) may be left out for this one to fit (the module's
+        docstring: landing)."""
         self._stage(rotation, translation)
         rotations = self._rotations[: self.count + 1]
         translations = self._translations[: self.count + 1]
-        landing = int(np.searchsorted(self.times, self.times[0] + landing_s, side="right"))
+        landing = int(np.searchsorted(self.times, self.started_s + landing_s, side="right"))
         sums, skip = self.sums.copy(), 0
         sums.add(rotation, translation)
         while True:
@@ -110,6 +116,7 @@ class _Run:
 
     def append(self, rotation, translation, time_s, frame, state):
         self.sums, skip = state
+        self.started_s = time_s if self.started_s is None else self.started_s
         self._stage(rotation, translation)
         self.count += 1
         self.times.append(time_s)
@@ -206,7 +213,7 @@ class HoldStillDetector:
             self._off = []
             self._start(rotation, translation, tip, time_s, frame)
             return touch
-        state = run.fits(rotation, translation, self.still_mm, self.tip_error_mm, self.still_s)
+        state = run.fits(rotation, translation, self.still_mm, self.tip_error_mm, LANDING_S)
         if state is not None:
             run.dropped += len(self._off)  # the frames off the point were glitches
             self._off = []
@@ -251,12 +258,10 @@ class HoldStillDetector:
             return None
         times = np.asarray(run.times)
         fit = run.sums.within(run.tip, self.tip_error_mm)
-        tips = run.rotations @ fit.p + run.translations
+        drift = _Drift(run.rotations @ fit.p + run.translations, times)
         first, last = 0, len(run) - 1
-        while _drift_mm(tips[first : last + 1], times[first : last + 1]) > MAX_DRIFT_MM:
-            if _drift_mm(tips[first + 1 : last + 1], times[first + 1 : last + 1]) <= _drift_mm(
-                tips[first:last], times[first:last]
-            ):
+        while drift(first, last) > MAX_DRIFT_MM:
+            if drift(first + 1, last) <= drift(first, last - 1):
                 first += 1
             else:
                 last -= 1
@@ -291,14 +296,26 @@ class HoldStillDetector:
         )
 
 
-def _drift_mm(tips, times):
-    """How far (mm) the least-squares line through tips (N, 3) over times (N,) moves from the first to the last."""
-    centred = times - times.mean()
-    spread = float(centred @ centred)
-    if spread <= 0.0:
-        return 0.0
-    velocity = centred @ (tips - tips.mean(axis=0)) / spread
-    return float(np.linalg.norm(velocity) * (times[-1] - times[0]))
+class _Drift:
+    """How far (mm) the least-squares line through tips[first..last] (N, 3) over their times (N,) s moves from the
+    first frame to the last: from prefix sums, so that any stretch costs the same."""
+
+    def __init__(self, tips, times):
+        self.times = times - times[0]
+        self._t = np.concatenate([[0.0], np.cumsum(self.times)])
+        self._tt = np.concatenate([[0.0], np.cumsum(self.times**2)])
+        self._x = np.vstack([np.zeros(3), np.cumsum(tips - tips[0], axis=0)])
+        self._tx = np.vstack([np.zeros(3), np.cumsum(self.times[:, None] * (tips - tips[0]), axis=0)])
+
+    def __call__(self, first, last):
+        count = last - first + 1
+        t, tt = self._t[last + 1] - self._t[first], self._tt[last + 1] - self._tt[first]
+        x, tx = self._x[last + 1] - self._x[first], self._tx[last + 1] - self._tx[first]
+        spread = tt - t * t / count
+        if count < 2 or spread <= 1e-12 * max(tt, 1.0):
+            return 0.0
+        velocity = (tx - t * x / count) / spread
+        return float(np.linalg.norm(velocity) * (self.times[last] - self.times[first]))
 
 
 def _number(value, what, unit, minimum, inclusive):
