@@ -206,6 +206,27 @@ def test_a_landmark_session_gives_one_point_per_landmark_and_reports_the_rests(t
     assert "2 rests not written" in printed
 
 
+def test_a_recording_cut_off_in_the_middle_gives_the_touches_before_the_cut_with_a_warning(tmp_path, capsys):
+    """The landmark session cut in the middle of a frame after its fourth landmark: the frames before the cut are
+    used (the rest at the start and the four landmarks, where the whole file puts them) and the warning says so."""
+    session = random_landmark_session(3, landmarks=8, rate_hz=15.0, tip_error_mm=2.5, invalid_runs=0)
+    whole = session.write(tmp_path / "whole.igs.mha")
+    text = whole.read_text()
+    fifth = int(np.searchsorted(read_sequence(whole).timestamps_s, session.contacts[4, 0]))
+    cut = tmp_path / "cut.igs.mha"
+    cut.write_text(text[: text.index(f"Seq_Frame{fifth:04d}_Timestamp") + 20])
+    out, report = tmp_path / "points.csv", tmp_path / "touches.json"
+    assert _collect(cut, "--out", out, "--json", report, tip=session.tip_calibrated) == 0
+    printed = capsys.readouterr().out
+    assert f"WARNING          {cut}: the file was cut short (no 'ElementDataFile = LOCAL' line): {fifth} complete" in (
+        printed
+    )
+    document = json.loads(report.read_text())
+    assert len(document["warnings"]) == 1 and document["frames"] == fifth
+    assert [touch["kind"] for touch in document["touches"]] == ["rest"] + ["swivel"] * 4
+    np.testing.assert_allclose(read_points(out).points, session.landmarks[:4], atol=0.3)
+
+
 @pytest.mark.parametrize(
     "arguments, expected",
     [

@@ -18,6 +18,10 @@ whether it is a swivel (PLUS's test: a point 100 mm up the shaft moves 30 mm), i
   tip still landing: a decelerating approach, or a frame near the mean of the calibrated tips but not at the
   swivel's fixed point, which differs from it by the tip's calibration error) are left out rather than ending the
   touch.
+- **Drift**: a run whose tip (at the run's point of the probe) drifts more than ``MAX_DRIFT_MM`` over it (its
+  least-squares line through time) is cut at its ends to the longest stretch that does not: a hand slowing down in
+  the air, or a tip sliding, moves steadily; a tip held on a point only scatters. A tip sliding slower than
+  ``MAX_DRIFT_MM / still_s`` (5 mm/s) is held still by this definition.
 - **Glitches and gaps**: up to ``MAX_GLITCH_FRAMES`` consecutive frames off the point, followed by one on it, are
   left out of the touch (``dropped_frames``) instead of ending it; invalid frames neither end a touch nor count (the
   touch goes on if the tip is back at its point when tracking resumes).
@@ -27,9 +31,9 @@ whether it is a swivel (PLUS's test: a point 100 mm up the shaft moves 30 mm), i
 A touch is emitted when its run ends (``add``/``add_pose`` returns it, ``MAX_GLITCH_FRAMES + 1`` frames after its
 last) or when the stream ends (``finish``). Fitting the whole run rather than its first frames makes the point
 independent of when the frames arrived. ``pending()`` tells a live user interface, while the tip is still held, that
-the current run already qualifies. Defaults: ``still_mm`` 1.5 mm (PLUS's StylusTipMaximumDisplacementThresholdMm),
-``still_s`` 0.2 s (the project's own live demo dwells 0.25 s on each point); a tip sliding slower than
-``2 * still_mm / still_s`` (15 mm/s) is held still by this definition.
+the current run already qualifies. Defaults: ``still_mm`` 1.5 mm (PLUS's StylusTipMaximumDisplacementThresholdMm;
+tracker noise of 0.25 mm RMS stays under 0.6 mm over hundreds of frames), ``still_s`` 0.2 s (the project's own live
+demo dwells 0.25 s on each point).
 """
 
 import math
@@ -51,8 +55,7 @@ MAX_GLITCH_FRAMES = 2
 #: A run's frames of its first LANDING_S (s) that stop fitting as the run's point becomes known better may be left
 #: out (the tip still landing: a decelerating approach spends 0.1-0.4 s within 1.5 mm of its point).
 LANDING_S = 0.5
-#: The most (mm) a touch's tip may drift (its least-squares linear trend over the touch): a hand slowing down in
-#: the air, or a tip sliding, moves steadily; a tip held on a point only scatters.
+#: The most (mm) a touch's tip may drift (its least-squares line through time, from its first frame to its last).
 MAX_DRIFT_MM = 1.0
 #: Frame times are sums of float intervals; a period this much shorter than still_s still counts.
 _TIME_TOLERANCE_S = 1e-9
