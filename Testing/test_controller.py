@@ -410,6 +410,39 @@ def test_hold_still_collection_takes_the_mean_of_each_hold(tracked):
     assert controller.status().hold_still_collect and not controller.status().auto_collect
 
 
+def test_hold_still_collection_takes_a_swivel_as_one_point_at_its_fixed_point_and_skips_a_rest(tracked):
+    """Live, as in ``ramsicp collect``: the probe lying still when collection is turned on is a rest (said, not
+    collected); a swivel of 40 degrees about a landmark, with ProbeTipToProbe 2.5 mm off, is one point exactly on the
+    landmark (the swivel's fixed point), where the mean tip would lie up to 2.5 mm away."""
+    from RAMSICPRegistrationLib.core.transforms import rotation_about_axis
+
+    controller, probe = tracked
+    set_matrix(controller.parameters.probeTipToProbe, make_transform(translation=TIP + (2.5, 0.0, 0.0)))
+    now = {"s": 0.0}
+    controller.pose_time = lambda node: now["s"]
+    messages = []
+    controller.add_listener(lambda event, data: messages.append(data[0]) if event == "message" else None)
+    lying = pose_with_tip_at([300.0, 0.0, 0.0])
+    set_matrix(probe, lying)
+    controller.run("set_hold_still_collect", True)
+    landmark = np.array([10.0, 20.0, 30.0])
+    frames = [lying] * 20 + [pose_with_tip_at(landmark + (0, 0, 40.0 - 10 * k)) for k in range(4)]
+    for k in range(60):  # the swivel: two tilts of up to 20 degrees each
+        angle = 2 * np.pi * k / 60
+        rotation = rotation_about_axis((1, 0, 0), np.radians(20) * np.sin(angle)) @ rotation_about_axis(
+            (0, 1, 0), np.radians(20) * np.sin(2 * angle)
+        )
+        frames.append(pose_with_tip_at(landmark, rotation))
+    frames += [pose_with_tip_at(landmark + (0, 0, 10.0 * (k + 1))) for k in range(4)]
+    for index, pose in enumerate(frames):
+        now["s"] = index / 20.0
+        set_matrix(probe, pose)
+    assert any("not collected: the probe lay still for" in message and "(a rest)" in message for message in messages)
+    (point,) = mrml_nodes.fiducial_positions(controller.parameters.probePoints)
+    np.testing.assert_allclose(point, landmark, atol=1e-6)
+    assert "point 1 collected: swivel of 2.95 s over 60 frames" in controller.status().message
+
+
 def test_flagged_markers_are_refused_and_numbered_markers_pair_by_number(tracked, scene, tibia_patient):
     """As ``ramsicp register``: a marker the CT flagged is not used silently; deleting it leaves the others paired
     by their numbers, so the coarse registration is still exact."""

@@ -1,10 +1,12 @@
 """Pivot calibration, the robot calibration of eqs. 3-4 and the four-point TCP calibration against transforms
 built by hand."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from RAMSICPRegistrationLib.core.pivot import pivot_calibration
+from RAMSICPRegistrationLib.core.pivot import OUTLIER_FACTOR, pivot_calibration
 from RAMSICPRegistrationLib.core.robot import (
     auxiliary_frame,
     image_to_robot_base,
@@ -17,9 +19,11 @@ from RAMSICPRegistrationLib.core.transforms import (
     make_transform,
     rotation_about_axis,
 )
+from RAMSICPRegistrationLib.io.pose_files import read_pose_folder
 
 from conftest import random_transform
 
+SKSURGERY = Path(__file__).parent / "Data" / "sksurgerycore_pivot"
 TIP = np.array([1.5, -2.0, 160.0])  # tip offset in the probe frame (mm)
 PIVOT = np.array([30.0, -40.0, 250.0])  # divot in the reference frame (mm)
 
@@ -50,17 +54,86 @@ def test_pivot_with_noise_and_a_slipped_tip(rng):
     assert result.rms_mm == pytest.approx(0.1 * np.sqrt(3), rel=0.35)  # RMS of 3-D noise of 0.1 per axis
 
 
+def test_robust_names_the_slip_as_a_time_range_and_lsq_keeps_it(rng):
+    """Poses 20-24 with the tip slipped 6 mm out of the divot: the robust fit drops exactly them, as one range with
+    their times and residuals, and finds the tip; plain least squares keeps every pose and is pulled off."""
+    poses = _pivoting_poses(rng, noise_mm=0.1)
+    poses[20:25, :3, 3] += (0.0, 6.0, 0.0)
+    times = 100.0 + np.arange(60) / 20.0
+    robust = pivot_calibration(poses, "robust", times)
+    (slip,) = robust.dropped
+    assert (slip.first, slip.last, slip.count) == (20, 24, 5)
+    assert (slip.start_s, slip.end_s) == (times[20], times[24])
+    assert slip.max_residual_mm == pytest.approx(6.0, abs=0.5) and robust.inliers.sum() == 55
+    assert np.linalg.norm(robust.tip_in_probe - TIP) < 0.2
+    assert robust.threshold_mm == pytest.approx(OUTLIER_FACTOR * np.median(robust.residuals_mm))
+    plain = pivot_calibration(poses, "lsq")
+    assert plain.inliers.all() and plain.dropped == () and plain.threshold_mm is None
+    assert np.linalg.norm(plain.tip_in_probe - TIP) > 2 * np.linalg.norm(robust.tip_in_probe - TIP)
+    document = robust.to_dict()
+    assert {"tip_mm", "pivot_mm", "rms_mm", "dropped"} <= set(document)
+    assert document["dropped"][0]["first_pose"] == 20 and document["dropped"][0]["end_s"] == times[24]
+
+
+def test_the_residual_is_reported_per_pose_per_axis_and_as_plus_does():
+    """Hand-computed: two residual vectors (3, 4, 0) and (0, 0, 0) of a fit; per pose 3-D RMS sqrt(25 / 2),
+    scikit-surgery's sqrt(25 / 6), PLUS's mean 2.5."""
+    from RAMSICPRegistrationLib.core.pivot import PivotResult
+
+    result = PivotResult(np.zeros(3), np.zeros(3), np.sqrt(25 / 2), np.ones(2, bool), 30.0, "lsq", np.array([5.0, 0]))
+    assert result.residual_per_axis_mm == pytest.approx(np.sqrt(25 / 6))
+    assert result.mean_residual_mm == pytest.approx(2.5)
+
+
+def test_lsq_on_scikit_surgerys_real_recording_gives_its_owners_expected_values():
+    """scikit-surgerycore's own test (test_pivot.py::test_return_value, commit 8f71235) on its 1151 poses: the tip
+    (-14.476, 395.143, -7.558), the pivot (-805.285, -85.448, -2112.066) and the residual 1.838 (its definition,
+    sqrt(sum of squared components / 3N)), to 1e-3 mm; the per-pose 3-D RMS is sqrt(3) times that."""
+    recording = read_pose_folder(SKSURGERY)
+    result = pivot_calibration(recording.poses, "lsq")
+    np.testing.assert_allclose(result.tip_in_probe, (-14.476, 395.143, -7.558), atol=1e-3)
+    np.testing.assert_allclose(result.pivot_in_reference, (-805.285, -85.448, -2112.066), atol=1e-3)
+    assert result.residual_per_axis_mm == pytest.approx(1.838, abs=1e-3)
+    assert result.rms_mm == pytest.approx(1.838 * np.sqrt(3), abs=2e-3) and result.inliers.all()
+
+
+def test_robust_on_scikit_surgerys_recording_drops_the_slips_and_names_them():
+    """The same recording: the runs where the tip slipped (residuals of 7-13 mm at 19.5, 22.9-24.5, 33.6-34.4 and
+    44.9-45.6 s from the first pose) are dropped as ranges; the kept poses fit better than all of them (as the owner
+    expects of its RANSAC fit) and the tip moves by less than 2 mm."""
+    recording = read_pose_folder(SKSURGERY)
+    times = recording.times_s - recording.times_s[0]
+    plain = pivot_calibration(recording.poses, "lsq")
+    robust = pivot_calibration(recording.poses, "robust", times)
+    assert robust.rms_mm < plain.rms_mm and robust.residual_per_axis_mm < 1.838
+    assert 1000 < robust.inliers.sum() < 1151
+    slips = [(entry.start_s, entry.end_s) for entry in robust.dropped if entry.max_residual_mm > 7.0]
+    assert len(slips) == 4
+    for (start, end), (expected_start, expected_end) in zip(
+        slips, [(19.4, 19.8), (22.8, 24.5), (33.5, 34.4), (44.8, 45.6)]
+    ):
+        assert expected_start <= start <= end <= expected_end + 0.05
+    assert all(entry.max_residual_mm > robust.threshold_mm for entry in robust.dropped)
+    assert np.linalg.norm(robust.tip_in_probe - plain.tip_in_probe) < 2.0
+
+
 @pytest.mark.parametrize(
-    "poses, message",
+    "poses, method, message",
     [
-        (np.tile(np.eye(4), (5, 1, 1)), "5 poses recorded, at least 10 needed"),
-        (np.tile(np.eye(4), (20, 1, 1)), "swivelled only 0 degrees"),
-        (np.zeros((12, 3, 3)), "expected an (N, 4, 4) array"),
+        (np.tile(np.eye(4), (5, 1, 1)), "robust", "5 poses recorded, at least 10 needed"),
+        (np.tile(np.eye(4), (20, 1, 1)), "robust", "swivelled only 0 degrees"),
+        (np.zeros((12, 3, 3)), "robust", "expected an (N, 4, 4) array"),
+        (np.tile(np.eye(4), (12, 1, 1)), "ransac", "pivot method 'ransac': choose one of robust, lsq"),
+        (
+            np.array([make_transform(rotation_about_axis((1, 0, 0), np.radians(a))) for a in range(0, 40, 2)]),
+            "lsq",
+            "the poses do not fix the tip (smallest singular value",
+        ),
     ],
 )
-def test_pivot_bad_input(poses, message):
+def test_pivot_bad_input(poses, method, message):
     with pytest.raises(ValueError) as error:
-        pivot_calibration(poses)
+        pivot_calibration(poses, method)
     assert message in str(error.value)
 
 

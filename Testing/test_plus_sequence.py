@@ -139,7 +139,11 @@ GOOD = CALIBRATION.read_text()
             ),
             r"frame 50, StylusToTrackerTransform: \d numbers, expected 16",
         ),
-        (lambda p: _broken(p, GOOD[: GOOD.index("Seq_Frame0050_Timestamp")]), "cut short; its last frame is 50"),
+        (lambda p: _broken(p, GOOD[: GOOD.index("Seq_Frame0000_")]), "before its first frame: the file was cut short"),
+        (
+            lambda p: _broken(p, GOOD[: GOOD.index("Seq_Frame0000_Timestamp")]),
+            "in its first frame: the file was cut short before any complete frame",
+        ),
         (
             lambda p: _broken(p, GOOD.replace("Frame0007_Timestamp = 197.19", "Frame0007_Timestamp = x197.19")),
             "frame 7, Timestamp: 'x197.19.*' is not a number",
@@ -161,7 +165,8 @@ GOOD = CALIBRATION.read_text()
         "nrrd",
         "not-an-image",
         "truncated-line",
-        "truncated",
+        "cut-in-header",
+        "cut-in-frame-0",
         "bad-number",
         "no-timestamp",
         "nan",
@@ -173,6 +178,35 @@ def test_broken_files_give_one_line_naming_file_frame_and_field(tmp_path, make, 
     with pytest.raises(SequenceFileError, match=expected) as error:
         read_sequence(path)
     assert "\n" not in str(error.value) and str(path) in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "cut, kept, incomplete",
+    [
+        ("Seq_Frame0050_Timestamp", 50, True),  # frame 50 has its transforms but not its time: left out
+        ("Seq_Frame0050_ReferenceToTrackerTransform", 50, False),  # cut exactly between frames 49 and 50
+        ("Seq_Frame0050_StylusToTrackerTransform = ", 50, True),  # cut in the middle of a line's value
+        ("ElementDataFile", 93, False),  # every frame there, only the closing line missing
+    ],
+)
+def test_a_file_cut_short_keeps_the_frames_before_the_cut_with_a_warning(tmp_path, caplog, cut, kept, incomplete):
+    """A recording cut off (a recorder killed, a copy interrupted): its complete frames are usable, equal to the
+    whole file's, and the warning says how many and why; a value cut in the middle of a line is never read."""
+    end = GOOD.index(cut) + (len(cut) + 7 if cut.endswith("= ") else 0)  # 7 characters into the line's value
+    path = _broken(tmp_path, GOOD[:end])
+    whole = read_sequence(CALIBRATION)
+    with caplog.at_level("WARNING"):
+        recording = read_sequence(path)
+    assert len(recording.frames) == kept
+    for frame, original in zip(recording.frames, whole.frames):
+        assert frame.timestamp_s == original.timestamp_s and frame.statuses == original.statuses
+        for name, matrix in original.transforms.items():
+            np.testing.assert_array_equal(frame.transforms[name], matrix)
+    (warning,) = recording.warnings
+    assert warning.startswith(f"{path}: the file was cut short (no 'ElementDataFile = LOCAL' line): {kept} complete")
+    assert "of the 93 its header announces" in warning
+    assert ("frame 50 was cut in the middle and is left out" in warning) == incomplete
+    assert warning in caplog.text  # logged as well
 
 
 def test_binary_pixels_after_the_header_are_ignored(tmp_path):

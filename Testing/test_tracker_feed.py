@@ -307,6 +307,14 @@ def test_live_demo_collects_every_touch_through_the_chain(tibia_patient, tibia_i
 
     recording = read_sequence(path)
     assert recording.transform_names == ["ReferenceToTracker", "ProbeToTracker"] and len(recording.frames) >= 170
+    # ramsicp collect on the project's own recording, with its defaults (the tool found in the file): the same
+    # eight touches as the live collection (its 0.8 mm and 0.15 s against 1.5 mm and 0.2 s: the same frames).
+    from OpenIGTLinkBridgeLib.recorded_touches import find_recorded_touches
+
+    collected = find_recorded_touches(recording, tip_mm=PROBE_TIP_MM)
+    assert collected.tool == "ProbeToTracker" and [t.kind for t in collected.touches] == ["hold"] * 8
+    offline = np.array([touch.position for touch in collected.touches])
+    assert np.abs(offline - result.collected).max() < 0.05
     replayed = run_live_demo(
         slicer.vtkMRMLScene(), tibia_patient, tibia_index, trial, server_factory=lambda: replay_server(path)
     )

@@ -24,7 +24,7 @@ from OpenIGTLinkBridgeLib.replay import ReplaySource
 DATA = Path(__file__).resolve().parents[1] / "Testing" / "Data"
 RECORDINGS = ("ReferenceToRASCalibration.igs.mha", "WaterTankBottomTranslationTrackerBuffer-trimmed.igs.mha")
 TIP = (203.772, -12.283, 1.17469)  # StylusTipToStylus of PlusLibData's fCal test configuration (an assumption)
-SETTINGS = ((1.0, 0.5), (2.0, 0.3))
+SETTINGS = ((1.5, 0.2), (1.0, 0.5), (2.0, 0.3))  # collect's defaults, the previous defaults, a looser hold
 
 
 def replay_timing(recording):
@@ -61,10 +61,10 @@ def main():
         for tool in [n for n in recording.transform_names if n != "ReferenceToTracker"]:
             for still_mm, still_s in SETTINGS:
                 found = find_recorded_touches(recording, tool, "ReferenceToTracker", TIP, still_mm, still_s)
-                spreads = ", ".join(f"{touch.spread_mm:.2f}" for touch in found.touches) or "-"
+                spreads = ", ".join(f"{touch.kind} {touch.spread_mm:.2f}" for touch in found.touches) or "-"
                 print(
-                    f"  {name[:30]:<30} {tool:<16} {still_mm:g} mm / {still_s:g} s: {len(found.touches)} touches; "
-                    f"spread (mm RMS) {spreads}"
+                    f"  {name[:30]:<30} {tool:<16} {still_mm:g} mm / {still_s:g} s: {len(found.touches)} touches "
+                    f"and rests; spread (mm RMS) {spreads}"
                 )
     print(f"\n{'replay (speed 1) -> receiver':<58} {'frames':>6}  lag ms: median   p99    max   rate ratio")
     for name, recording in recordings.items():

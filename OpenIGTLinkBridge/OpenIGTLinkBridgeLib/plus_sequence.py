@@ -14,8 +14,15 @@ LOCAL`` last; pixel data, if any, follows that line and is ignored here. The fra
 Numbers are written with Python's shortest round-trip form, so a file written and read back gives the same
 float64 bits (PLUS itself writes 16 significant digits). Lines stay under PLUS's 1000-character limit.
 A file that cannot be read gives ``SequenceFileError``: one line naming the file, the frame and the field.
+
+A file cut short (a recorder killed while writing, a copy interrupted: no ``ElementDataFile`` line) is read up to
+the cut: a last line without its end of line is a value cut in the middle and is left out, and so is the last
+frame when it lacks fields the frame before it has; the frames before the cut are returned with a warning
+(``Recording.warnings``, also logged) saying how many were kept. Only a file cut before its first complete frame
+is refused.
 """
 
+import logging
 import math
 import os
 import re
@@ -34,6 +41,7 @@ _DIMSIZE_WIDTH = 40
 _FRAME_FIELD = re.compile(r"Seq_Frame(\d+)_(.+)")
 _NAME = re.compile(r"[A-Za-z0-9_]+")
 _IDENTITY = np.eye(4)
+logger = logging.getLogger(__name__)
 
 #: The header PLUS writes for a tracking-only sequence (vtkPlusMetaImageSequenceIO), in its order.
 _HEADER = (
@@ -80,11 +88,13 @@ class TrackedFrame:
 
 @dataclass(frozen=True)
 class Recording:
-    """The frames of a sequence file and its non-frame header fields (text, in file order)."""
+    """The frames of a sequence file, its non-frame header fields (text, in file order) and what was wrong with the
+    file but did not stop it being read (``warnings``: one line each, e.g. the file was cut short)."""
 
     frames: list
     header: dict
     path: Path = None
+    warnings: tuple = ()
 
     @property
     def transform_names(self):
@@ -107,11 +117,13 @@ class Recording:
 
 # -- reading --------------------------------------------------------------------------------------------------
 def read_sequence(path):
-    """Read a PLUS sequence file; raises SequenceFileError with one line naming the file, frame and field."""
+    """Read a PLUS sequence file; raises SequenceFileError with one line naming the file, frame and field. A file
+    cut short gives the frames before the cut and a warning (the module's docstring)."""
     path = Path(path)
-    text_lines = _header_lines(path)
+    text_lines, ended, terminated = _header_lines(path)
+    if not ended and not terminated:
+        text_lines = text_lines[:-1]  # the last line was cut in the middle of its value
     header, raw_frames = {}, {}
-    ended = False
     for number, line in enumerate(text_lines, start=1):
         if not line.strip():
             continue
@@ -125,7 +137,6 @@ def read_sequence(path):
             )
         if name == "ElementDataFile":
             header[name] = value
-            ended = True
             break
         match = _FRAME_FIELD.fullmatch(name)
         if match is None:
@@ -136,22 +147,50 @@ def read_sequence(path):
         if field_name in fields:
             raise SequenceFileError(f"{path}: frame {index}, {field_name}: given twice (line {number})")
         fields[field_name] = value
+    warnings = ()
     if not ended:
-        last = f"; its last frame is {max(raw_frames)}" if raw_frames else ""
-        raise SequenceFileError(
-            f"{path}: ends before 'ElementDataFile = LOCAL', the header's last line: the file was cut short{last}"
-        )
+        raw_frames, warnings = _frames_before_the_cut(path, header, raw_frames)
     if not raw_frames:
         raise SequenceFileError(f"{path}: holds no frames (no Seq_FrameNNNN_ fields)")
     missing = sorted(set(range(max(raw_frames) + 1)) - set(raw_frames))
     if missing:
         raise SequenceFileError(f"{path}: frame {missing[0]}: missing (frames are numbered 0 to {max(raw_frames)})")
     frames = [_parse_frame(path, index, raw_frames[index]) for index in range(len(raw_frames))]
-    return Recording(frames, header, path)
+    for warning in warnings:
+        logger.warning(warning)
+    return Recording(frames, header, path, warnings)
+
+
+def _frames_before_the_cut(path, header, raw_frames):
+    """The complete frames of a file cut short (no ElementDataFile line), and the warning that says so."""
+    if not raw_frames:
+        raise SequenceFileError(
+            f"{path}: ends before 'ElementDataFile = LOCAL', the header's last line, and before its first frame: "
+            "the file was cut short"
+        )
+    last = max(raw_frames)
+    complete = dict(raw_frames)
+    incomplete = ""
+    if "Timestamp" not in complete[last] or (last > 0 and set(complete[last]) != set(complete.get(last - 1, ()))):
+        del complete[last]
+        incomplete = f"; frame {last} was cut in the middle and is left out"
+    if not complete:
+        raise SequenceFileError(
+            f"{path}: ends before 'ElementDataFile = LOCAL', the header's last line, in its first frame: the file "
+            "was cut short before any complete frame"
+        )
+    announced = header.get("DimSize", "").split()
+    of = f" of the {announced[-1]} its header announces" if len(announced) == 3 and announced[-1] != "0" else ""
+    warning = (
+        f"{path}: the file was cut short (no 'ElementDataFile = LOCAL' line): {len(complete)} complete frames "
+        f"read{of}{incomplete}"
+    )
+    return complete, (warning,)
 
 
 def _header_lines(path):
-    """The text lines up to and including ElementDataFile (pixel bytes after it are never decoded)."""
+    """The text lines up to and including ElementDataFile (pixel bytes after it are never decoded), whether that
+    line was found, and whether the last line read ended with an end of line."""
     if not path.exists():
         raise SequenceFileError(f"{path}: no such file")
     if path.is_dir():
@@ -163,7 +202,8 @@ def _header_lines(path):
     if not data.strip():
         raise SequenceFileError(f"{path}: is empty; a sequence file starts with 'ObjectType = Image'")
     lines = []
-    for raw in data.split(b"\n"):
+    raw_lines = data.split(b"\n")
+    for raw in raw_lines:
         try:
             line = raw.decode("ascii").rstrip("\r")
         except UnicodeDecodeError:
@@ -172,8 +212,8 @@ def _header_lines(path):
             ) from None
         lines.append(line)
         if line.split("=", 1)[0].strip() == "ElementDataFile":
-            break
-    return lines
+            return lines, True, True
+    return lines, False, data.endswith(b"\n")
 
 
 def _parse_frame(path, index, fields):

@@ -85,10 +85,12 @@ _EXPORTS = {
     "plan_document": "core.tool_path",
     "CutGuidance": "core.guidance",
     "cut_guidance": "core.guidance",
-    # core: probe-point collection by holding the tip still
+    # core: touches (the tip held at one point, still or swivelled) and the fixed point of a swivel
     "HoldStillDetector": "core.hold_still",
-    "Touch": "core.hold_still",
+    "Touch": "core.touch",
     "find_touches": "core.hold_still",
+    "find_pose_touches": "core.hold_still",
+    "fixed_point_fit": "core.fixed_point",
     # io: files
     "PointFileError": "io.point_files",
     "read_points": "io.point_files",

@@ -17,6 +17,7 @@ from .exit_codes import EXIT_ALARM, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TOO_F
 #: The commands in the order ``--help`` lists them: the surgeon's workflow, then the demonstrations.
 COMMANDS = (
     "ipc",
+    "pivot",
     "collect",
     "register",
     "plan",

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pivot import fixed_point_fit
+from .fixed_point import fixed_point_fit
 from .transforms import invert_transform, make_transform
 from .validation import as_points, as_transform, check_distinct, check_not_collinear
 

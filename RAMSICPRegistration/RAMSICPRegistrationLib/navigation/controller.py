@@ -335,10 +335,10 @@ class NavigationController:
                 self._say(f"auto-collect stopped: {error}", is_error=True)
         if self._hold_still is not None:
             try:
-                parameters = self.parameters
-                tip = self.steps.tip_in_reference(caller, parameters.probeTipToProbe)
+                pose = matrix_of(caller, "ProbeToReference")  # the pose, not only the tip: a swivel is one touch
+                tip = matrix_of(self.parameters.probeTipToProbe, "ProbeTipToProbe")[:3, 3]
                 when = self.clock() if self.pose_time is None else self.pose_time(caller)
-                touch = self._hold_still.add(tip, when, self._probe_frames)
+                touch = self._hold_still.add_pose(pose, tip, when, self._probe_frames)
                 if touch is not None:
                     self._add_touch(touch)
             except (ValueError, TypeError, RuntimeError) as error:
@@ -368,7 +368,7 @@ class NavigationController:
             pivot_poses=0 if self._pivot_poses is None else len(self._pivot_poses),
             auto_collect=self._auto_collect,
             hold_still_collect=self._hold_still is not None,
-            holding=self._hold_still is not None and self._hold_still.pending() is not None,
+            holding=self._hold_still is not None and self._hold_still.holding,
             probe_poses=self._probe_frames,
             probe_points=_count(parameters.probePoints),
             marker_points=_count(parameters.markersPatient),
@@ -606,7 +606,7 @@ class NavigationController:
         Turns auto-collect off: one collection mode at a time."""
         if not enabled:
             if self._hold_still is not None:
-                touch, self._hold_still = self._hold_still.finish(), None
+                touch, self._hold_still = self._hold_still.finish(end_of_recording=False), None
                 if touch is not None:
                     self._add_touch(touch)
                 self._notify("hold-still", False)
@@ -617,6 +617,10 @@ class NavigationController:
         self.set_auto_collect(False)
         parameters = self.parameters
         self._hold_still = HoldStillDetector(parameters.holdStillMm, parameters.holdStillS)
+        probe = parameters.probeToReference  # its pose now comes first: a probe lying still since then is a rest
+        when = self.clock() if self.pose_time is None else self.pose_time(probe)
+        tip = matrix_of(parameters.probeTipToProbe, "ProbeTipToProbe")[:3, 3]
+        self._hold_still.add_pose(matrix_of(probe, "ProbeToReference"), tip, when, self._probe_frames)
         self._say(
             f"hold-still collection on: hold the tip still for {parameters.holdStillS:g} s "
             f"(within {parameters.holdStillMm:g} mm), then lift it"
@@ -624,6 +628,11 @@ class NavigationController:
         self._notify("hold-still", True)
 
     def _add_touch(self, touch):
+        if touch.rest:  # the probe lay still since collection began: not a touch of anything
+            self._say(
+                f"not collected: the probe lay still for {touch.duration_s:.1f} s since collection began (a rest)"
+            )
+            return
         parameters = self.parameters
         node = parameters.probePoints
         if node is None:
@@ -631,7 +640,7 @@ class NavigationController:
             parameters.probePoints = node
         index = self.steps.add_point(node, touch.position)
         self._say(
-            f"point {index + 1} collected: held {touch.duration_s:.2f} s over {touch.frames} frames, "
+            f"point {index + 1} collected: {touch.kind} of {touch.duration_s:.2f} s over {touch.frames} frames, "
             f"spread {touch.spread_mm:.2f} mm"
         )
         self._notify("collected", (node, index, touch))
