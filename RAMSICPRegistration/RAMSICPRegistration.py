@@ -38,6 +38,7 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from OpenIGTLinkBridgeLib.robot_link import RobotLink
+from RAMSICPRegistrationLib.core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
 from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from RAMSICPRegistrationLib.core.tool_path import TOOLS
 from RAMSICPRegistrationLib.navigation.controller import Cancelled, NavigationController
@@ -117,8 +118,8 @@ class RAMSICPRegistrationParameterNode:
     markersPatient: vtkMRMLMarkupsFiducialNode
     probePoints: vtkMRMLMarkupsFiducialNode
     autoCollectDistanceMm: Annotated[float, WithinRange(0.5, 50.0)] = 5.0
-    holdStillMm: Annotated[float, WithinRange(0.2, 10.0)] = 1.0
-    holdStillS: Annotated[float, WithinRange(0.05, 5.0)] = 0.5
+    holdStillMm: Annotated[float, WithinRange(0.2, 10.0)] = DEFAULT_STILL_MM
+    holdStillS: Annotated[float, WithinRange(0.05, 5.0)] = DEFAULT_STILL_S
     method: Annotated[str, Choice(list(METHODS))] = DEFAULT_METHOD
     policy: Annotated[str, Choice(list(POLICIES))] = "rms-plateau"
     referenceToImage: vtkMRMLLinearTransformNode

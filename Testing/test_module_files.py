@@ -114,6 +114,7 @@ def _wrapper_fields(name):
 
 @pytest.mark.parametrize("name", MODULES)
 def test_the_widgets_parameter_node_declares_exactly_the_controllers_parameters(name):
+    from RAMSICPRegistrationLib.core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
     from RAMSICPRegistrationLib.core.registration import DEFAULT_METHOD, METHODS, POLICIES
     from RAMSICPRegistrationLib.core.tool_path import TOOLS
 
@@ -121,6 +122,7 @@ def test_the_widgets_parameter_node_declares_exactly_the_controllers_parameters(
     parameters = _parameter_set(name).parameters
     assert list(fields) == [parameter.name for parameter in parameters]
     known = {"DEFAULT_METHOD": DEFAULT_METHOD, "list(METHODS)": list(METHODS), "list(POLICIES)": list(POLICIES)}
+    known.update(DEFAULT_STILL_MM=DEFAULT_STILL_MM, DEFAULT_STILL_S=DEFAULT_STILL_S)
     known["list(TOOLS)"] = list(TOOLS)
     if name == "OpenIGTLinkBridge":
         from OpenIGTLinkBridgeLib.bridge_controller import SOURCES

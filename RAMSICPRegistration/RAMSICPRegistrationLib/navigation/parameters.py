@@ -10,6 +10,7 @@ module's singleton parameter node, found and created as ``ScriptedLoadableModule
 
 from dataclasses import dataclass
 
+from ..core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.tool_path import TOOLS
 
@@ -51,8 +52,8 @@ PARAMETERS = (
     Parameter("markersPatient", "node", "marker centres in reference coordinates", FIDUCIALS),
     Parameter("probePoints", "node", "the patient point cloud, PPC (written)", FIDUCIALS),
     Parameter("autoCollectDistanceMm", "float", "auto-collect spacing (mm)", default=5.0, minimum=0.5, maximum=50.0),
-    Parameter("holdStillMm", "float", "hold-still radius (mm)", default=1.0, minimum=0.2, maximum=10.0),
-    Parameter("holdStillS", "float", "hold-still time (s)", default=0.5, minimum=0.05, maximum=5.0),
+    Parameter("holdStillMm", "float", "hold-still radius (mm)", default=DEFAULT_STILL_MM, minimum=0.2, maximum=10.0),
+    Parameter("holdStillS", "float", "hold-still time (s)", default=DEFAULT_STILL_S, minimum=0.05, maximum=5.0),
     # 4. register
     Parameter("method", "choice", "registration method", default=DEFAULT_METHOD, choices=METHODS),
     Parameter("policy", "choice", "how the RAMSICP sweep chooses L", default="rms-plateau", choices=POLICIES),
