@@ -24,6 +24,7 @@ from conftest import PAPER_FIG8_MM, recorded_trials, register_every_way
 DEMO_ROWS = {
     "CR": ("CR", "CR"),
     "CR-ICP": ("CR-ICP", "CR-ICP"),
+    "CR-ICP point-to-plane (Open3D's method)": ("cr-icp-plane", None),
     "CR-RAMSICP (L by min TRE, paper)": ("paper's L", "CR-RAMSICP"),
     "CR-RAMSICP (rms-plateau, target-free)": ("rms-plateau", None),
     "CR-RAMSICP (fixed L = 5)": ("fixed L = 5", None),
@@ -71,6 +72,7 @@ def _arguments(folder, *extra):
     [
         (["--method", "cr"], {"method": "cr"}),
         (["--method", "cr-icp"], {"method": "cr-icp"}),
+        (["--method", "cr-icp-plane"], {"method": "cr-icp-plane"}),
         (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
         (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
         ([], {}),  # the default method: cr-fused

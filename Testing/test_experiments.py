@@ -20,6 +20,7 @@ from conftest import PAPER_FIG8_MM, recorded_trials, register_every_way
 ROW_RECIPES = {
     "CR": "CR",
     "CR-ICP": "CR-ICP",
+    "cr-icp-plane": "cr-icp-plane",
     "CR-RAMSICP (paper's L)": "paper's L",
     "CR-RAMSICP (rms-plateau)": "rms-plateau",
     "cr-fused": "cr-fused",
@@ -248,7 +249,11 @@ def _tables(results, trials):
         for bone, figure in experiment["bones"].items():
             if name == "fig7":
                 for combination, curve in figure["combinations"].items():
-                    fig7_rows = {"CR-ICP": curve["icp"]["trials_mm"], "sweep": curve["trials_tre_mm"]}
+                    fig7_rows = {
+                        "CR-ICP": curve["icp"]["trials_mm"],
+                        "cr-icp-plane": curve["icp_plane"]["trials_mm"],
+                        "sweep": curve["trials_tre_mm"],
+                    }
                     tables.append((f"fig7 {bone} {combination}", fig7_rows, take(len(curve["trials_tre_mm"]))))
             elif name == "fig8":
                 pairs = take(2 * figure["manual_markers"]["CR"]["n"])

@@ -105,7 +105,7 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
 @pytest.mark.parametrize(
     "change, message",
     [
-        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp, cr-fused"),
+        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-icp-plane, cr-ramsicp, cr-fused"),
         ({"method": "cr-icp", "sweep": True}, "apply to cr-ramsicp only"),
         ({"method": "cr-fused", "policy": "rms-plateau"}, "apply to cr-ramsicp only"),
         ({"method": "cr-fused", "fle_mm": -1.0}, "marker error (FLE) -1.0 mm: give a positive number"),

@@ -47,6 +47,7 @@ _EXPORTS = {
     "MatchingRanges": "core.icp",
     "icp": "core.icp",
     "ramsicp": "core.icp",
+    "icp_point_to_plane": "core.plane_icp",
     "fle_from_fre": "core.metrics",
     "predicted_tre": "core.metrics",
     "target_registration_error": "core.metrics",

@@ -63,7 +63,8 @@ import numpy as np
 from .icp import DEFAULT_TOLERANCE_MM, MatchingRanges
 from .metrics import fle_from_fre
 from .paired_point import rigid_procrustes
-from .transforms import apply_transform, make_transform, rotation_about_axis
+from .small_motion import cross_rows, invert_information, motion, point_jacobians, skew, solve
+from .transforms import apply_transform
 
 _IDENTITY = np.eye(3)
 
@@ -205,7 +206,7 @@ class FusedFit:
 def predicted_errors(covariance, centre, points):
     """``sqrt(trace(A C A^T))`` for each (T, 3) point, ``A = [-[y - c]_x, I]`` (F4); (T,) mm."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    jacobians = _point_jacobians(points - centre)  # (T, 3, 6)
+    jacobians = point_jacobians(points - centre)  # (T, 3, 6)
     squared = np.einsum("tij,jk,tik->t", jacobians, covariance, jacobians)
     return np.sqrt(np.maximum(squared, 0.0))
 
@@ -289,8 +290,8 @@ def _fit_from(transform, weights, data, options):
             step = _procrustes_step(state, markers_image, weights.marker_weight)
             move = _largest_move(step, state.moved_points, markers_image)
         else:  # Gauss-Newton on F4's normal equations
-            delta = _solve(state.information, -state.gradient)
-            step = _motion(delta, state.centre)
+            delta = solve(state.information, -state.gradient)
+            step = motion(delta, state.centre)
             # No point moves further than the translation plus the rotation's arc at the farthest point.
             move = float(np.linalg.norm(delta[3:]) + np.linalg.norm(delta[:3]) * state.radius)
         transform = step @ transform
@@ -311,7 +312,7 @@ def _fit_from(transform, weights, data, options):
         break
     if not converged:  # the last state is more than the tolerance away from where the loop stopped
         state = _State(index, match, transform, ppc, markers_patient, markers_image, weights, loss, frozen)
-    covariance = _invert_information(state.information)
+    covariance = invert_information(state.information)
     surface_dof = float(np.trace(covariance @ state.surface_information)) if np.isfinite(covariance).all() else 6.0
     return FusedFit(
         transform=transform,
@@ -348,8 +349,8 @@ def _starts(data, weights):
     information, _ = _marker_equations(moved - centre, moved - markers_image)
     variances, motions = np.linalg.eigh(np.linalg.inv(weights.marker_weight * information))
     return [
-        _motion(sign * 2.0 * np.sqrt(variance) * motion, centre) @ coarse
-        for variance, motion in zip(variances, motions.T)
+        motion(sign * 2.0 * np.sqrt(variance) * direction, centre) @ coarse
+        for variance, direction in zip(variances, motions.T)
         for sign in (-1.0, 1.0)
     ]
 
@@ -376,7 +377,7 @@ class _State:
         self.marker_information, marker_gradient = _marker_equations(
             self.moved_markers - self.centre, self.marker_residuals
         )
-        rows = np.hstack((_cross(self.moved_points - self.centre, self.normals), self.normals))
+        rows = np.hstack((cross_rows(self.moved_points - self.centre, self.normals), self.normals))
         weighted = rows * self.surface_weights[:, None]
         self.surface_information = weighted.T @ rows
         self.information = self.marker_weight * self.marker_information + self.surface_information
@@ -390,7 +391,7 @@ def _reestimated(state, weights, variance, sigma_reliable, prior_sigma):
     of the 6 pose parameters, ``trace(C H_g)`` (variance-component estimation). With the surface switched off the
     markers' redundancy is ``3K - 6`` and this is F2 exactly. The surface noise never drops below its prior (F3).
     """
-    covariance = _invert_information(state.information)
+    covariance = invert_information(state.information)
     if not np.isfinite(covariance).all():
         return None
     sigma, fle = weights.surface_sigma_mm, weights.marker_fle_mm
@@ -431,34 +432,6 @@ def _robust_weights(residuals, sigma, loss):
     return np.minimum(1.0, HUBER_THRESHOLD / np.maximum(normalised, 1e-12))
 
 
-def _cross(a, b):
-    """Row-wise cross product of (N, 3) arrays (np.cross costs more than the rest of an iteration here)."""
-    return np.stack(
-        (
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        ),
-        axis=1,
-    )
-
-
-def _skew(vector):
-    """(3, 3) cross-product matrix: ``_skew(a) @ b == a x b``."""
-    return np.array([[0.0, -vector[2], vector[1]], [vector[2], 0.0, -vector[0]], [-vector[1], vector[0], 0.0]])
-
-
-def _point_jacobians(offsets):
-    """(T, 3, 6) Jacobian of a point's displacement under (w, t) about the centre: ``[-[y - c]_x, I]`` (F4)."""
-    jacobians = np.zeros((len(offsets), 3, 6))
-    x, y, z = offsets[:, 0], offsets[:, 1], offsets[:, 2]
-    jacobians[:, 0, 1], jacobians[:, 0, 2] = z, -y
-    jacobians[:, 1, 0], jacobians[:, 1, 2] = -z, x
-    jacobians[:, 2, 0], jacobians[:, 2, 1] = y, -x
-    jacobians[:, :, 3:] = np.eye(3)
-    return jacobians
-
-
 def _marker_equations(offsets, residuals):
     """Information (6, 6) and gradient (6,) of unit-weight marker rows ``[-[d]_x, I]``, offsets d from the centre.
 
@@ -467,28 +440,10 @@ def _marker_equations(offsets, residuals):
     block = np.zeros((6, 6))
     scatter = offsets.T @ offsets
     block[:3, :3] = np.trace(scatter) * _IDENTITY - scatter
-    block[:3, 3:] = _skew(offsets.sum(axis=0))
+    block[:3, 3:] = skew(offsets.sum(axis=0))
     block[3:, :3] = -block[:3, 3:]
     block[3:, 3:] = len(offsets) * _IDENTITY
-    return block, np.concatenate((_cross(offsets, residuals).sum(axis=0), residuals.sum(axis=0)))
-
-
-def _invert_information(information):
-    """Covariance from the information matrix; an unconstrained motion gets an infinite variance."""
-    values, vectors = np.linalg.eigh(information)
-    scale = max(values[-1], 1e-300)
-    inverse = np.where(values > 1e-12 * scale, 1.0 / np.where(values > 0, values, 1.0), np.inf)
-    if np.isinf(inverse).any():
-        return np.full((6, 6), np.inf)
-    return (vectors * inverse) @ vectors.T
-
-
-def _solve(information, right):
-    """``information^-1 right``; least squares when the information is singular (a motion nothing constrains)."""
-    try:
-        return np.linalg.solve(information, right)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(information, right, rcond=1e-12)[0]
+    return block, np.concatenate((cross_rows(offsets, residuals).sum(axis=0), residuals.sum(axis=0)))
 
 
 def _procrustes_step(state, markers_image, marker_weight):
@@ -497,10 +452,3 @@ def _procrustes_step(state, markers_image, marker_weight):
     target = np.vstack((markers_image, state.matched_points))
     pair_weights = np.concatenate((np.full(len(markers_image), marker_weight), state.surface_weights))
     return rigid_procrustes(source, target, pair_weights)
-
-
-def _motion(delta, centre):
-    """The rigid motion (4, 4): rotation by the vector ``delta[:3]`` (rad) about ``centre``, then ``delta[3:]``."""
-    angle = float(np.linalg.norm(delta[:3]))
-    rotation = rotation_about_axis(delta[:3], angle) if angle > 0 else np.eye(3)
-    return make_transform(rotation, centre + delta[3:] - rotation @ centre)

@@ -1,4 +1,5 @@
-"""The whole registration: CR, then optionally ICP or RAMSICP (the paper), or the fused fit, with errors and warnings.
+"""The whole registration: CR, then optionally ICP or RAMSICP (the paper), point-to-plane ICP, or the fused fit, with
+errors and warnings.
 
 ``register`` is the one entry point the command line, the Slicer logic and the experiments call.
 """
@@ -22,6 +23,7 @@ from .fused import (
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
+from .plane_icp import icp_point_to_plane
 from .surface_index import SurfaceIndex
 from .sweep import PAPER_SCALES, sweep_scales
 from .transforms import apply_transform
@@ -29,7 +31,7 @@ from .validation import as_points, check_not_collinear
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("cr", "cr-icp", "cr-ramsicp", "cr-fused")
+METHODS = ("cr", "cr-icp", "cr-icp-plane", "cr-ramsicp", "cr-fused")
 
 #: The method the command line, the demo, the Slicer module and the scenarios use unless told otherwise: the one
 #: that measures best without targets (README, "The fused registration"): markers and probe points in one fit.
@@ -178,7 +180,8 @@ def register(
     min_radius_mm=DEFAULT_MIN_RADIUS_MM,
     probe_noise_mm=DEFAULT_PROBE_NOISE_MM,
 ):
-    """Register the patient (reference frame) to the image: CR, CR-ICP, CR-RAMSICP or the fused fit (cr-fused).
+    """Register the patient (reference frame) to the image: CR, CR-ICP (point to point or to plane), CR-RAMSICP or
+    the fused fit (cr-fused).
 
     Args:
         ipc: SurfaceIndex, or (M, 3) IPC points in image coordinates (mm).
@@ -186,7 +189,8 @@ def register(
         markers_image: (K, 3) marker-sphere centres in the image (mm), K >= 3.
         markers_patient: (K, 3) the same centres in reference coordinates, same order.
         targets_image, targets_patient: optional (T, 3) targets for the TRE (eq. 11).
-        method: 'cr', 'cr-icp', 'cr-ramsicp' or 'cr-fused' (default ``DEFAULT_METHOD``).
+        method: 'cr', 'cr-icp' (the paper's point-to-point ICP), 'cr-icp-plane' (point-to-plane ICP,
+            ``core.plane_icp``), 'cr-ramsicp' or 'cr-fused' (default ``DEFAULT_METHOD``).
         scale: L for a single RAMSICP run (default ``DEFAULT_SCALE``); with ``sweep`` it is the 'fixed' L.
         sweep: run RAMSICP for every L in ``scales`` and choose one by ``policy``.
         policy: one of POLICIES; default 'targets' when targets are given, else 'rms-plateau'.
@@ -226,6 +230,8 @@ def register(
         warnings += _fused_warnings(fused, coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
     elif method == "cr-icp":
         fine = icp(index, ppc, coarse.transform)
+    elif method == "cr-icp-plane":
+        fine = icp_point_to_plane(index, ppc, coarse.transform)
     elif method == "cr-ramsicp":
         if sweep:
             chosen_policy = policy or ("targets" if targets_patient is not None else "rms-plateau")

@@ -6,7 +6,7 @@ own numbers where the paper gives them, and offsets series that share an x so no
 
 import numpy as np
 
-from .experiments import FUSED, PAPER, TARGET_FREE
+from .experiments import FUSED, PAPER, PLANE, TARGET_FREE
 
 RAMSICP_PAPER = "CR-RAMSICP (paper's L)"
 RAMSICP_FREE = f"CR-RAMSICP ({TARGET_FREE})"
@@ -14,6 +14,7 @@ RAMSICP_FREE = f"CR-RAMSICP ({TARGET_FREE})"
 COLOURS = {
     "CR": "#7f7f7f",
     "CR-ICP": "#1f77b4",
+    PLANE: "#9467bd",
     RAMSICP_PAPER: "#ff7f0e",
     RAMSICP_FREE: "#2ca02c",
     FUSED: "#d62728",
@@ -21,6 +22,7 @@ COLOURS = {
 SHORT = {
     "CR": "CR",
     "CR-ICP": "CR-ICP",
+    PLANE: "CR-ICP\npoint to plane",
     RAMSICP_PAPER: "CR-RAMSICP\n(paper's L)",
     RAMSICP_FREE: f"CR-RAMSICP\n({TARGET_FREE})",
     FUSED: FUSED,
@@ -126,7 +128,7 @@ def plot_fig8(data, path):
 def plot_fig9(data, path):
     """TRE against the CR error, a panel per bone, the series side by side, the 1 mm goal labelled."""
     plt, figure, panels = _panels(data["bones"])
-    methods = ("CR-ICP", RAMSICP_PAPER, RAMSICP_FREE, FUSED)
+    methods = ("CR-ICP", PLANE, RAMSICP_PAPER, RAMSICP_FREE, FUSED)
     goal = PAPER["fig9_below_1_mm_up_to"]
     for axes, (bone, bone_data) in zip(panels, data["bones"].items()):
         levels = np.array([float(level) for level in bone_data["levels"]])
