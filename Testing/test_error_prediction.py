@@ -70,7 +70,8 @@ def test_the_uncertainty_of_a_fit_splits_its_covariance_and_agrees_with_f4(tibia
     assert uncertainty.marker_dof == 6 and result.fused_weights.fle_source == "fre"
     assert result.tre_mm is None and result.target_errors_mm is None  # image targets alone: no measured TRE
     assert np.all(result.predicted_tre_95_mm > result.predicted_tre_mm)
-    given = register(tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, trial.targets_image, fle_mm=1.0)
+    case = (trial.ppc, trial.markers_image, trial.markers_patient, trial.targets_image)
+    given = register(tibia_index, *case, fle_mm=1.0)
     assert given.uncertainty.marker_dof is None and given.uncertainty.weighting_bias is None  # a given FLE is known
     np.testing.assert_allclose(
         given.predicted_tre_mm, predicted_errors(given.pose_covariance, given.covariance_centre_mm, trial.targets_image)
