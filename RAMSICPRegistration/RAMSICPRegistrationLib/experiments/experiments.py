@@ -24,6 +24,7 @@ from ..simulation.package_data import bone_mesh, shipped_patient
 from ..simulation.virtual_patient import VirtualPatient
 from .demo import ct_image_side
 from .design import DEFAULT_SUBJECTS, DEFAULT_TRIALS, EXPERIMENTS, SUBJECT_BONES
+from .guided import run_guided
 from .trials import evaluate_trial
 
 logger = logging.getLogger(__name__)
@@ -132,7 +133,7 @@ def run_experiments(
     by_bone = {bone: [s for s in people if s.bone == bone] for bone in SUBJECT_BONES}
     by_bone = {bone: group for bone, group in by_bone.items() if group}
     rng = np.random.default_rng(seed + 1000)
-    runners = {"fig7": _fig7, "fig8": _fig8, "fig9": _fig9, "fig10a": _fig10a, "fig10b": _fig10b}
+    runners = {"fig7": _fig7, "fig8": _fig8, "fig9": _fig9, "fig10a": _fig10a, "fig10b": _fig10b, "guided": _guided}
     results = {
         "settings": {
             "seed": seed,
@@ -336,6 +337,11 @@ def _fig10b(subjects, trials, rng, progress):
         counts[str(8 * per_area)] = {label: summarise(values) for label, values in _method_rows(results).items()}
         _tick(progress, "fig10b", done + 1, 4)
     return {"point_counts": counts}
+
+
+def _guided(subjects, trials, rng, progress):
+    """TRE against the number of touches: guided, free and the paper's sub-areas (``experiments.guided``)."""
+    return run_guided(subjects, trials, rng, progress, _acquire, ERROR_MODEL["probe_noise_mm"])
 
 
 def _tick(progress, step, done, total):
