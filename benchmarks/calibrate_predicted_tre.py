@@ -44,22 +44,34 @@ CALIBRATION_BAND = (0.8, 1.25)
 
 
 def run_cell(subjects, fle, options, trials, rng):
-    """Measured (n,) and predicted mean (n,), RMS (n,) and 95th percentile (n,) errors over ``trials`` trials."""
+    """Measured (n,) and predicted mean (n,), RMS (n,) and 95th percentile (n,) errors over ``trials`` trials, and
+    how many acquisitions ``register`` refused (5 points bunched into a patch too small to fit the surface under
+    them: drawn again)."""
     measured, mean, rms, p95 = [], [], [], []
+    refused = 0
     for trial in range(trials):
         subject = subjects[trial % len(subjects)]
         patient = subject.patient
-        acquisition = {"sub_areas": (int(rng.integers(1, 9)),)} if options == "one sub-area" else options
-        data = patient.simulate_trial(rng, fle, ERROR_MODEL["probe_noise_mm"], **acquisition)
         truth = apply_transform(invert_transform(patient.reference_to_image), patient.targets_image)
-        result = register(subject.index, data.ppc, data.markers_image, data.markers_patient, patient.targets_image)
+        while True:
+            acquisition = {"sub_areas": (int(rng.integers(1, 9)),)} if options == "one sub-area" else options
+            data = patient.simulate_trial(rng, fle, ERROR_MODEL["probe_noise_mm"], **acquisition)
+            try:
+                result = register(
+                    subject.index, data.ppc, data.markers_image, data.markers_patient, patient.targets_image
+                )
+                break
+            except ValueError as error:
+                if "cannot be the surface under" not in str(error):
+                    raise
+                refused += 1
         moved = apply_transform(result.reference_to_image, truth) - patient.targets_image
         measured.append(np.linalg.norm(moved, axis=1))
         errors = result.uncertainty.errors_at(patient.targets_image)
         mean.append(errors.mean_mm)
         rms.append(errors.rms_mm)
         p95.append(errors.quantile_mm(0.95))
-    return tuple(np.concatenate(values) for values in (measured, mean, rms, p95))
+    return (*(np.concatenate(values) for values in (measured, mean, rms, p95)), refused)
 
 
 def main():
@@ -84,7 +96,7 @@ def main():
     for bone in SUBJECT_BONES:
         subjects = [subject for subject in people if subject.bone == bone]
         for regime, (fle, options) in REGIMES.items():
-            measured, mean, rms, p95 = run_cell(subjects, fle, options, arguments.trials, rng)
+            measured, mean, rms, p95, refused = run_cell(subjects, fle, options, arguments.trials, rng)
             row = {
                 "bone": bone,
                 "regime": regime,
@@ -94,9 +106,11 @@ def main():
                 "mean_ratio": float(measured.mean() / mean.mean()),
                 "rms_ratio": float(np.sqrt(np.mean(measured**2) / np.mean(rms**2))),
                 "coverage_95": float(np.mean(measured <= p95)),
+                "refused": refused,
             }
             rows.append(row)
             flag = "" if CALIBRATION_BAND[0] <= row["mean_ratio"] <= CALIBRATION_BAND[1] else "  <- outside 0.8-1.25"
+            flag += f"  ({refused} acquisitions refused by register, drawn again)" if refused else ""
             print(
                 f"{bone:<13} {regime:<34} {row['n']:>4} {row['measured_mean_mm']:9.3f} {row['predicted_mean_mm']:9.3f} "
                 f"{row['mean_ratio']:10.2f} {row['rms_ratio']:9.2f} {row['coverage_95']:13.3f}{flag}",

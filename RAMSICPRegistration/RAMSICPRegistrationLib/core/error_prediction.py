@@ -32,7 +32,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .small_motion import invert_information, point_jacobians
+from .small_motion import invert_information, point_jacobians, surface_rows
 
 #: Directions of the Fibonacci lattice on the sphere that E1 averages over (a half sphere: u and -u agree).
 DIRECTIONS = 400
@@ -109,8 +109,6 @@ class PoseUncertainty:
         """The uncertainty after probe touches at (N, 3) image points on the surface with unit normals (N, 3), each
         a distance along its normal with noise ``sigma_mm`` (default: the fit's, F3): the probe points' information
         grows by ``sum j j^T / sigma^2``, ``j = [(y - c) x n, n]`` (F4), and the covariance is its new inverse."""
-        from .small_motion import surface_rows
-
         sigma = self.surface_sigma_mm if sigma_mm is None else sigma_mm
         rows = surface_rows(
             np.asarray(points_image, float).reshape(-1, 3), np.reshape(normals, (-1, 3)), self.centre_mm

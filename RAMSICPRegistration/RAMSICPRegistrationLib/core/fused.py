@@ -194,7 +194,8 @@ class FusedFit:
         surface_dof: how many of the 6 pose parameters the probe points fix, ``trace(C H_surface)`` (0 to 6);
             the markers fix the rest.
         weights: the FusedWeights used (after any re-estimation of the surface noise).
-        starts: 1, or how many fits were run (13, 25 or 37) when the first ended off the surface (``restarts``).
+        starts: 1, or how many fits were run (13, 25 or 37) when the first was in doubt (``restarts``);
+            chosen_start: which of them was kept (0: the first, from the CR).
         marker_information, surface_information: (6, 6) the two parts of ``covariance``'s inverse at the solution,
             ``J^T W J`` of the markers' rows and of the probe points' rows (F4): the predicted error's distribution
             when the markers' FLE is itself uncertain, and a new touch's effect, need them apart
@@ -211,6 +212,7 @@ class FusedFit:
     surface_dof: float
     weights: FusedWeights
     starts: int = 1
+    chosen_start: int = 0
     marker_information: np.ndarray = None
     surface_information: np.ndarray = None
 
@@ -289,7 +291,7 @@ def fused_fit(
             best = int(np.argmin([_objective(candidate.transform, weights, data) for candidate in candidates]))
             if not _doubtful(candidates[best], weights, data):
                 break
-        fit = replace(candidates[best], starts=len(candidates))
+        fit = replace(candidates[best], starts=len(candidates), chosen_start=best)
     return fit
 
 

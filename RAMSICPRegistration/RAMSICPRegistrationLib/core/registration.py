@@ -452,11 +452,12 @@ def _fused_warnings(fused, coarse, markers_patient, markers_image):
             f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
             "matched to the wrong wall of a thin bone does this."
         )
-    if fused.starts > 1:
+    if fused.chosen_start > 0:
         warnings.append(
             f"cr-fused started again: its first fit ended with the probe points more than {RESTART_RATIO:g} times "
-            f"their noise from the surface, so it was run from {fused.starts - 1} poses around the CR and the best "
-            "was kept. Check the CR (marker order and centres) and that the probe points were touched on this bone."
+            "their noise from the surface, or fit its data worse than their noise allows, and of "
+            f"{fused.starts - 1} poses around the CR another one led to a better fit, which was kept. Check the CR "
+            "(marker order and centres) and that the probe points were touched on this bone."
         )
     prior = surface_sigma(weights.probe_noise_mm, weights.ipc_spacing_mm)
     if weights.surface_sigma_mm > SURFACE_NOISE_RATIO * prior:
