@@ -171,7 +171,7 @@ def recorded_trials(module):
 def register_every_way(index, data, markers_image=None):
     """One simulated trial (a TrialData) registered again by each method and policy, straight through ``register``.
 
-    Returns the TRE (mm, eq. 11) under 'CR', 'CR-ICP', 'fixed L = 5' (a single RAMSICP run at L = 5),
+    Returns the TRE (mm, eq. 11) under 'CR', 'CR-ICP', 'cr-icp-plane', 'fixed L = 5' (a single RAMSICP run at L = 5),
     'rms-plateau' (a sweep chosen by that policy, its L under 'rms-plateau L'), 'sweep' (the TRE at every L of the
     sweep, (21,)), "paper's L" (the sweep's minimum, its L under "paper's L value") and 'cr-fused'.
     """
@@ -188,6 +188,7 @@ def register_every_way(index, data, markers_image=None):
     return {
         "CR": again("cr").tre_mm,
         "CR-ICP": again("cr-icp").tre_mm,
+        "cr-icp-plane": again("cr-icp-plane").tre_mm,
         "fixed L = 5": again("cr-ramsicp", scale=5.0).tre_mm,
         "rms-plateau": plateau.tre_mm,
         "rms-plateau L": plateau.scale,

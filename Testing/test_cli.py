@@ -24,6 +24,7 @@ from conftest import PAPER_FIG8_MM, recorded_trials, register_every_way
 DEMO_ROWS = {
     "CR": ("CR", "CR"),
     "CR-ICP": ("CR-ICP", "CR-ICP"),
+    "CR-ICP point-to-plane (Open3D's method)": ("cr-icp-plane", None),
     "CR-RAMSICP (L by min TRE, paper)": ("paper's L", "CR-RAMSICP"),
     "CR-RAMSICP (rms-plateau, target-free)": ("rms-plateau", None),
     "CR-RAMSICP (fixed L = 5)": ("fixed L = 5", None),
@@ -71,6 +72,7 @@ def _arguments(folder, *extra):
     [
         (["--method", "cr"], {"method": "cr"}),
         (["--method", "cr-icp"], {"method": "cr-icp"}),
+        (["--method", "cr-icp-plane"], {"method": "cr-icp-plane"}),
         (["--scale", "2.4"], {"method": "cr-ramsicp", "scale": 2.4}),
         (["--sweep", "--policy", "rms-plateau"], {"method": "cr-ramsicp", "sweep": True, "policy": "rms-plateau"}),
         ([], {}),  # the default method: cr-fused
@@ -136,13 +138,69 @@ def test_bad_input_exits_2_with_one_line(case_files, tmp_path, capsys, mutate, m
 
 def test_register_rejects_half_given_targets_and_missing_files(case_files, capsys):
     folder, _, _ = case_files
-    arguments = _arguments(folder)[:-2]
-    assert main(arguments) == 2
-    assert "give --targets-image and --targets-patient together" in capsys.readouterr().err
+    arguments = _arguments(folder)
+    at = arguments.index("--targets-image")
+    assert main(arguments[:at] + arguments[at + 2 :]) == 2  # patient targets without the image's
+    assert "--targets-patient needs the same targets in the image" in capsys.readouterr().err
     assert (
         main(["register", "--ipc", "nothing.vtp", "--ppc", "a", "--markers-image", "b", "--markers-patient", "c"]) == 2
     )
     assert "nothing.vtp: no such file" in capsys.readouterr().err
+
+
+def test_register_with_the_plans_targets_alone_gives_the_next_touch_and_enough(case_files, tmp_path, capsys):
+    """--targets-image alone: the predicted error at the plan's targets (no TRE), the next touch among the
+    reachable points and 'enough' for --target-tre, all equal to the library's (``core.touch_guidance``)."""
+    from RAMSICPRegistrationLib.core.touch_guidance import touch_guidance
+
+    folder, ipc, trial = case_files
+    reachable = ipc[np.linalg.norm(ipc - trial.targets_image.mean(axis=0), axis=1) < 30.0]
+    write_points(tmp_path / "reachable.csv", reachable)
+    index = SurfaceIndex(ipc)
+    expected = register(index, trial.ppc, trial.markers_image, trial.markers_patient, trial.targets_image)
+    limit = float(expected.predicted_tre_95_mm.max()) + 0.01  # just above every target's 95 % bound: enough
+    guidance = touch_guidance(expected, index, reachable=reachable, target_tre_mm=limit)
+    arguments = _arguments(folder)
+    at = arguments.index("--targets-patient")
+    output = tmp_path / "result.json"
+    extra = ["--reachable", str(tmp_path / "reachable.csv"), "--target-tre", f"{limit!r}", "--json", str(output)]
+    assert main(arguments[:at] + arguments[at + 2 :] + extra) == 0
+    printed = capsys.readouterr().out
+    document = json.loads(output.read_text())
+    assert document["tre_mm"] is None and document["target_errors_mm"] is None
+    np.testing.assert_allclose(document["predicted_tre_mm"], expected.predicted_tre_mm, rtol=1e-9)
+    np.testing.assert_allclose(document["predicted_tre_95_mm"], expected.predicted_tre_95_mm, rtol=1e-6)
+    touch = document["next_touch"]
+    np.testing.assert_allclose(touch["position_image"], guidance.next_touch.position_image, atol=1e-6)
+    assert touch["predicted_tre_rms_mm"] == pytest.approx(guidance.next_touch.predicted_tre_rms_mm, rel=1e-6)
+    assert touch["predicted_tre_rms_mm"] < document["predicted_tre_rms_mm"]
+    assert np.linalg.norm(reachable - touch["position_image"], axis=1).min() < 1e-4  # one of the reachable points
+    assert document["enough"] is True and document["target_tre_mm"] == pytest.approx(limit)
+    assert "next touch        (" in printed and f"enough            yes: every target below {limit:g} mm" in printed
+    # Just below the largest bound: not enough.
+    extra[3] = f"{limit - 0.02!r}"
+    assert main(arguments[:at] + arguments[at + 2 :] + extra) == 0
+    assert json.loads(output.read_text())["enough"] is False and "enough            no" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--target-tre", "0.5", "--method", "cr-icp"], "need cr-fused's predicted error, not cr-icp's"),
+        (["--reachable", "REACHABLE"], "mm from the IPC"),
+    ],
+)
+def test_register_guidance_mistakes_are_one_line(case_files, tmp_path, capsys, extra, message):
+    folder, _, _ = case_files
+    write_points(tmp_path / "far.csv", np.full((3, 3), 1e4))
+    extra = [str(tmp_path / "far.csv") if value == "REACHABLE" else value for value in extra]
+    assert main(_arguments(folder, *extra)) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and "\n" not in error
+    arguments = _arguments(folder)
+    at = arguments.index("--targets-image")
+    assert main(arguments[:at] + arguments[at + 4 :] + ["--target-tre", "0.5"]) == 2
+    assert "give --targets-image too" in capsys.readouterr().err
 
 
 def _check_demo_document(document, trials, registered):

@@ -20,6 +20,7 @@ from conftest import PAPER_FIG8_MM, recorded_trials, register_every_way
 ROW_RECIPES = {
     "CR": "CR",
     "CR-ICP": "CR-ICP",
+    "cr-icp-plane": "cr-icp-plane",
     "CR-RAMSICP (paper's L)": "paper's L",
     "CR-RAMSICP (rms-plateau)": "rms-plateau",
     "cr-fused": "cr-fused",
@@ -43,7 +44,8 @@ def test_all_files_are_written(reproduction):
     folder, results, _ = reproduction
     for name in ("report.md", "results.json", "fig7.png", "fig8.png", "fig9.png", "fig10a.png", "fig10b.png"):
         assert (folder / name).stat().st_size > 1000
-    assert set(results["experiments"]) == {"fig7", "fig8", "fig9", "fig10a", "fig10b"}
+    assert (folder / "guided.png").stat().st_size > 1000
+    assert set(results["experiments"]) == {"fig7", "fig8", "fig9", "fig10a", "fig10b", "guided"}
     report = (folder / "report.md").read_text()
     for heading in (
         "## Error model",
@@ -52,6 +54,7 @@ def test_all_files_are_written(reproduction):
         "## Fig. 9",
         "## Fig. 10a",
         "## Fig. 10b",
+        "## Guided touches (beyond the paper)",
         "## cr-fused against the targets set for it",
         "## Why our figures differ",
     ):
@@ -245,10 +248,16 @@ def _tables(results, trials):
 
     tables = []
     for name, experiment in results["experiments"].items():
+        if name == "guided":  # registers its own touches, not through evaluate_trial (see its own test)
+            continue
         for bone, figure in experiment["bones"].items():
             if name == "fig7":
                 for combination, curve in figure["combinations"].items():
-                    fig7_rows = {"CR-ICP": curve["icp"]["trials_mm"], "sweep": curve["trials_tre_mm"]}
+                    fig7_rows = {
+                        "CR-ICP": curve["icp"]["trials_mm"],
+                        "cr-icp-plane": curve["icp_plane"]["trials_mm"],
+                        "sweep": curve["trials_tre_mm"],
+                    }
                     tables.append((f"fig7 {bone} {combination}", fig7_rows, take(len(curve["trials_tre_mm"]))))
             elif name == "fig8":
                 pairs = take(2 * figure["manual_markers"]["CR"]["n"])
@@ -277,3 +286,45 @@ def test_every_row_equals_its_trials_registered_again(reproduction):
         paper_below_fixed += sum(trial["paper's L"] < trial["fixed L = 5"] - 1e-3 for trial in again)
     # The minimum-TRE L is not the fixed L = 5 in many trials: paper's-L rows filled from a fixed L would show.
     assert paper_below_fixed >= 20
+
+
+def test_guided_curves_are_their_stored_touches_registered_again_and_follow_the_guidance(reproduction):
+    """Every TRE of the guided experiment is its trial's stored touches registered again by cr-fused, count by
+    count; each guided touch after the first 3 is where the guidance sent it from the touches before it."""
+    from RAMSICPRegistrationLib.core.registration import register
+    from RAMSICPRegistrationLib.core.touch_guidance import touch_guidance
+    from RAMSICPRegistrationLib.experiments.experiments import build_subjects
+    from RAMSICPRegistrationLib.experiments.guided import START_TOUCHES, reachable_points
+
+    _, results, _ = reproduction
+    subjects = {subject.name: subject for subject in build_subjects(2, seed=0, image_source="mesh")}
+    checked = 0
+    for bone, data in results["experiments"]["guided"]["bones"].items():
+        counts = data["counts"]
+        assert counts[0] == START_TOUCHES and counts[-1] == 40
+        for number, trial in enumerate(data["trials"]):
+            subject = subjects[trial["subject"]]
+            assert subject.bone == bone
+            patient = subject.patient
+            case = (np.array(trial["markers_image"]), patient.markers_reference, patient.targets_image,
+                    np.array(trial["targets_patient"]))  # fmt: skip
+            for arm, touches in trial["touches_patient"].items():
+                touches = np.array(touches)
+                assert touches.shape == (40, 3)
+                stored = data["arms"][arm]["trials_tre_mm"][number]
+                for column in (0, 9, 37):  # 3, 12 and 40 touches
+                    again = register(subject.index, touches[: counts[column]], *case).tre_mm
+                    assert again == pytest.approx(stored[column], abs=1e-9), (arm, counts[column])
+                    checked += 1
+            guided = np.array(trial["touches_patient"]["guided"])
+            np.testing.assert_array_equal(guided[:START_TOUCHES], np.array(trial["touches_patient"]["free"])[:3])
+            reachable = reachable_points(subject)
+            for count in (3, 11):  # the suggestions that made touches 4 and 12
+                result = register(subject.index, guided[:count], *case)
+                suggestion = touch_guidance(result, subject.index, reachable=reachable).next_touch
+                np.testing.assert_allclose(suggestion.position_image, trial["suggested_image"][count - 3], atol=1e-9)
+    assert checked >= 36
+    check = data["check"]
+    assert check["guided_mm"] == pytest.approx(np.mean(np.array(data["arms"]["guided"]["trials_tre_mm"])[:, 9]))
+    assert check["free_mm"] == pytest.approx(np.mean(np.array(data["arms"]["free"]["trials_tre_mm"])[:, -1]))
+    assert check["met"] == (check["guided_mm"] <= check["free_mm"] + 0.05)

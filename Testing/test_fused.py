@@ -209,3 +209,23 @@ def test_a_fit_caught_on_the_other_table_of_the_wing_starts_again(ilium):
     assert result.ppc_rms_mm < 0.5  # the probe noise: 0.25 mm RMS in 3-D
     assert result.tre_mm < 1.0 < target_registration_error(once.transform, trial.targets_patient, trial.targets_image)
     assert any(warning.startswith("cr-fused started again") for warning in result.warnings)
+
+
+@pytest.mark.parametrize("seed, starts", [(4, 37), (25, 13)])
+def test_a_fit_in_a_wrong_basin_of_the_thin_fibula_is_started_again_farther_out(seed, starts, monkeypatch):
+    """The fibula, an FLE of 2.5 mm, 8 points: trial 4's first fit ends off the surface and the +-2 sd restarts do not
+    leave that basin (7.6 mm TRE), +-6 sd do; trial 25's first fit sits on the surface with the markers pulled away
+    (F1 above its chi-square's 99th percentile: 3.6 mm TRE), and the +-2 sd restarts find the bone's own fit."""
+    from RAMSICPRegistrationLib.core import fused
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+
+    patient = shipped_patient("right-fibula")[0]
+    index = SurfaceIndex(patient.ipc)
+    trial = patient.simulate_trial(np.random.default_rng(seed), 2.5, points_per_area=1)
+    case = (trial.ppc, trial.markers_image, trial.markers_patient, trial.targets_image, trial.targets_patient)
+    result = register(index, *case)
+    assert result.tre_mm < 1.0 and any(warning.startswith("cr-fused started again") for warning in result.warnings)
+    assert f"of {starts - 1} poses around the CR" in " ".join(result.warnings)
+    monkeypatch.setattr(fused, "RESTART_SPREADS", (2.0,))  # the restarts before: +-2 sd, only off the surface
+    monkeypatch.setattr(fused, "MISFIT_P", 1e-300)
+    assert register(index, *case).tre_mm > 3.0

@@ -105,7 +105,7 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
 @pytest.mark.parametrize(
     "change, message",
     [
-        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-ramsicp, cr-fused"),
+        ({"method": "icp"}, "method 'icp': use one of cr, cr-icp, cr-icp-plane, cr-ramsicp, cr-fused"),
         ({"method": "cr-icp", "sweep": True}, "apply to cr-ramsicp only"),
         ({"method": "cr-fused", "policy": "rms-plateau"}, "apply to cr-ramsicp only"),
         ({"method": "cr-fused", "fle_mm": -1.0}, "marker error (FLE) -1.0 mm: give a positive number"),
@@ -117,7 +117,7 @@ def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
             {"markers_image": np.eye(3)},
             "markers in the patient (reference) has 4 points but markers in the image has 3",
         ),
-        ({"targets_image": np.zeros((4, 3))}, "give them in both frames"),
+        ({"targets_patient": np.zeros((4, 3))}, "patient targets need the same targets in the image"),
         ({"targets_image": np.zeros((3, 3)), "targets_patient": np.zeros((4, 3))}, "3 in the image"),
         ({"method": "cr-ramsicp", "policy": "targets"}, "ask for the sweep"),
         ({"method": "cr-ramsicp", "sweep": True, "policy": "targets"}, "needs target points"),

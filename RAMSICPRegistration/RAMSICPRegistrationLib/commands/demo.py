@@ -134,7 +134,8 @@ def _format_demo(report, total_seconds):
         f"  time: {total_seconds:.1f} s in all"
         + (f" ({image_seconds})" if image_seconds else "")
         + f"; KD-tree {1000 * seconds['kd_tree_build']:.0f} ms once; "
-        f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP + a 21-value RAMSICP sweep "
+        f"{1000 * seconds['per_trial_and_mode']:.0f} ms per trial for CR + CR-ICP (point to point and to plane) + a "
+        "21-value RAMSICP sweep "
         "+ cr-fused",
     ]
     return "\n".join(lines)

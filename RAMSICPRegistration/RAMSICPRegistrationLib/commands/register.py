@@ -1,5 +1,7 @@
 """``ramsicp register``: probe points and marker centres registered to the image point cloud (CR, then the fine
-step), with FRE, TRE and the per-point residuals; exit 4 when the result fails a check."""
+step), with FRE, TRE and the per-point residuals; given the plan's targets in the image, cr-fused's predicted error
+there, the next touch that lowers it most and, with a limit, whether it is enough (``core.touch_guidance``); exit 4
+when the result fails a check."""
 
 import json
 import sys
@@ -41,8 +43,24 @@ def add_parser(commands):
         action="store_true",
         help="use marker centres that ramsicp ipc flagged partial or deformed (refused otherwise)",
     )
-    reg.add_argument("--targets-image", help="target points in the image (for the TRE)")
-    reg.add_argument("--targets-patient", help="the same targets in reference coordinates")
+    reg.add_argument(
+        "--targets-image",
+        help="target points in the image, e.g. the plan's endpoints: cr-fused's predicted error there and the next "
+        "touch; with --targets-patient also the TRE",
+    )
+    reg.add_argument("--targets-patient", help="the same targets in reference coordinates (for the TRE)")
+    reg.add_argument(
+        "--reachable",
+        help="points of the exposed bone surface in the image, where the probe can touch: the next touch is chosen "
+        "among them (default: the whole IPC; needs --targets-image)",
+    )
+    reg.add_argument(
+        "--target-tre",
+        type=POSITIVE_MM,
+        metavar="MM",
+        help="the error the plan needs at every target: the JSON's 'enough' is true when cr-fused's predicted error "
+        "at each target is below it with 95 %% confidence (needs --targets-image)",
+    )
     reg.add_argument(
         "--method",
         choices=METHODS,
@@ -89,46 +107,63 @@ def run(arguments):
     from ..core.registration import register
     from ..core.surface_index import SurfaceIndex
     from ..core.sweep import make_scales
+    from ..core.touch_guidance import touch_guidance
     from ..io.point_files import read_points
     from ..io.surface_files import read_surface_points
 
     space = arguments.untagged_space
-    if (arguments.targets_image is None) != (arguments.targets_patient is None):
-        raise ValueError("give --targets-image and --targets-patient together")
+    if arguments.targets_patient is not None and arguments.targets_image is None:
+        raise ValueError("--targets-patient needs the same targets in the image: give --targets-image too")
+    guided = arguments.reachable is not None or arguments.target_tre is not None
+    if guided and arguments.targets_image is None:
+        raise ValueError("--reachable and --target-tre are about the plan's targets: give --targets-image too")
+    method = arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp")
+    if guided and method != "cr-fused":
+        raise ValueError(f"--reachable and --target-tre need cr-fused's predicted error, not {method}'s")
     scales = make_scales(*arguments.scales)
     inputs = (arguments.ipc, arguments.ppc, arguments.markers_image, arguments.markers_patient)
-    inputs += (arguments.targets_image, arguments.targets_patient)
+    inputs += (arguments.targets_image, arguments.targets_patient, arguments.reachable)
     check_output_file(arguments.json, "--json", (".json",), inputs)
     clock = time.perf_counter()
     ipc = read_surface_points(arguments.ipc, space)
     ppc = read_points(arguments.ppc, space).points
     markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
-    targets_image = targets_patient = None
+    targets_image = targets_patient = reachable = None
     if arguments.targets_image:
         targets_image = read_points(arguments.targets_image, space).points
+    if arguments.targets_patient:
         targets_patient = read_points(arguments.targets_patient, space).points
+    if arguments.reachable:
+        reachable = read_points(arguments.reachable, space).points
+    index = SurfaceIndex(ipc)
     result = register(
-        SurfaceIndex(ipc),
+        index,
         ppc,
         markers_image,
         markers_patient,
         targets_image,
         targets_patient,
-        method=arguments.method or (DEFAULT_METHOD if _default_method_fits(arguments) else "cr-ramsicp"),
+        method=method,
         scale=arguments.scale,
         sweep=arguments.sweep,
         scales=scales,
         policy=arguments.policy,
         fle_mm=arguments.fle,
     )
+    guidance = None
+    if result.uncertainty is not None and targets_image is not None:
+        guidance = touch_guidance(result, index, reachable=reachable, target_tre_mm=arguments.target_tre)
     seconds = time.perf_counter() - clock
     if arguments.json:  # written before anything is printed: a reader that leaves early loses nothing
         document = result.to_dict()
         document["warnings"] = marker_warnings + document["warnings"]
+        if guidance is not None:
+            document.update(guidance_fields(guidance))
         document["seconds"] = seconds
         arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
     loud = marker_warnings + list(result.alarms)
-    print("".join(f"WARNING: {warning}\n" for warning in loud) + _format_result(result, len(ipc), seconds))
+    summary = _format_result(result, len(ipc), seconds, guidance)
+    print("".join(f"WARNING: {warning}\n" for warning in loud) + summary)
     if result.alarms:
         print(
             f"ramsicp register: the result failed {len(result.alarms)} check(s) (WARNING above); it is printed"
@@ -174,7 +209,15 @@ def _default_method_fits(arguments):
     return arguments.scale is None and not arguments.sweep and arguments.policy is None
 
 
-def _format_result(result, ipc_count, seconds):
+def guidance_fields(guidance):
+    """The JSON's touch-guidance fields: ``next_touch`` (``position_image``, ``normal_image``, and the
+    ``predicted_tre_rms_mm`` and per-target ``predicted_tre_mm`` once touched) and, with a limit, ``target_tre_mm``
+    and ``enough``; the predicted error now is the result's own ``predicted_tre_mm`` and ``predicted_tre_95_mm``."""
+    document = guidance.to_dict()
+    return {key: document[key] for key in ("next_touch", "target_tre_mm", "enough") if key in document}
+
+
+def _format_result(result, ipc_count, seconds, guidance=None):
     lines = []
     method = result.method.upper()
     if result.method == "cr-ramsicp":
@@ -194,12 +237,29 @@ def _format_result(result, ipc_count, seconds):
         lines.append(f"weights           {weights.describe()}")
     if result.tre_mm is not None:
         lines.append(f"TRE (eq. 11)      {result.tre_mm:.2f} mm  [{decimals(result.target_errors_mm)}]")
-        if result.predicted_tre_mm is not None:
-            lines.append(
-                f"predicted TRE     {result.predicted_tre_rms_mm:.2f} mm  [{decimals(result.predicted_tre_mm)}] "
-                "from the fused fit's covariance"
-            )
+    if result.predicted_tre_mm is not None:
+        lines.append(
+            f"predicted TRE     {result.predicted_tre_rms_mm:.2f} mm  [{decimals(result.predicted_tre_mm)}] "
+            "from the fused fit's covariance"
+        )
+        lines.append(f"95 % bound        [{decimals(result.predicted_tre_95_mm)}] mm at each target")
+    if result.predicted_cr_tre_mm is not None:
         lines.append(f"predicted CR TRE  [{decimals(result.predicted_cr_tre_mm)}] mm for FLE {result.fle_mm:.2f} mm")
+    if guidance is not None:
+        touch = guidance.next_touch
+        position = " ".join(f"{value:.1f}" for value in touch.position_image)
+        lines.append(
+            f"next touch        ({position}) mm in the image: the predicted TRE would fall to "
+            f"{touch.predicted_tre_rms_mm:.2f} mm"
+        )
+        if guidance.enough is not None:
+            verdict = "yes" if guidance.enough else "no"
+            lines.append(
+                f"enough            {verdict}: every target below {guidance.target_tre_mm:g} mm with 95 % confidence"
+                if guidance.enough
+                else f"enough            {verdict}: not every target is below {guidance.target_tre_mm:g} mm with 95 % "
+                "confidence; touch more"
+            )
     lines.append("ReferenceToImage")
     lines.extend("  " + "  ".join(f"{value:11.5f}" for value in row) for row in result.reference_to_image)
     if result.sweep:

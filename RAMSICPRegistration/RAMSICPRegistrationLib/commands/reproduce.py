@@ -1,4 +1,5 @@
-"""``ramsicp reproduce``: the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with every method."""
+"""``ramsicp reproduce``: the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with every method, and
+the guided touches (beyond the paper)."""
 
 import time
 from pathlib import Path
@@ -15,14 +16,16 @@ def add_parser(commands):
         help="the paper's experiments (Figs. 7-10) on CT phantoms of four bones, with every method",
         description="Runs the paper's experiments on virtual patients (CT phantoms of the shipped bones with a "
         "reference body): Fig. 7 the TRE against the scale factor L, Fig. 8 the methods compared, Fig. 9 the "
-        "robustness to a poor coarse registration, Figs. 10a/10b the number and spread of probe points. Writes "
-        "report.md (only what this run measured), results.json and one figure per experiment into --out.",
+        "robustness to a poor coarse registration, Figs. 10a/10b the number and spread of probe points; beyond the "
+        "paper, 'guided' the TRE against the number of touches, touched where the predicted TRE falls most, freely or "
+        "in the paper's sub-areas. Writes report.md (only what this run measured), results.json and one figure per "
+        "experiment into --out.",
     )
     reproduce.add_argument(
         "--experiment",
         choices=(*EXPERIMENTS, "all"),
         default="all",
-        help="which experiment to run (default all)",
+        help="which experiment to run (default all: the paper's figures and guided)",
     )
     reproduce.add_argument("--trials", type=COUNT, help="repetitions per condition (default: the paper's)")
     reproduce.add_argument(

@@ -9,7 +9,13 @@ surface" (Fig. 6b, the targets of eq. 11). A cut here is a plane in image (RAS) 
 * ``extent_mm``: the cut's width across the bone, centred on the origin, or None to cut across the whole bone.
 
 The bone's **section** in the plane comes from the IPC: exactly, where the plane crosses the surface's triangles
-when the IPC is a mesh, or as the IPC points within ``half_thickness_mm`` of the plane when it is a point cloud.
+when the IPC is a mesh. A point cloud has no triangles: each of its points near the plane (within
+``SECTION_HALF_THICKNESS_MM`` or two median point spacings, whichever is larger) is carried onto the plane along
+its local surface (a quadric fitted to its neighbours, ``core.cloud_surface``) to where that surface crosses the
+cut: on the cut plane exactly and on the cloud's surface to within its own noise. A whole-bone end of a point
+cloud's section is the top of a parabola fitted to the section's points near it (the section's curve is flat
+there); a corner of a limited cut is where the side line itself crosses the local surfaces of the cloud's points
+near it.
 The four **endpoints** (4, 3) are where the cut meets the bone's surface:
 
 * a cut across the whole bone: the section's ends along +across, -across, +depth (the far end) and -depth (the
@@ -27,11 +33,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .cloud_surface import CloudSurface
 from .transforms import rotation_about_axis
 from .validation import as_points
 
-#: IPC points this close to the plane (mm) make a point cloud's section (a mesh's section is exact).
+#: IPC points this close to the plane (mm), or within one median point spacing when the cloud is sparser, are carried
+#: onto it to make a point cloud's section (a mesh's section is exact).
 SECTION_HALF_THICKNESS_MM = 0.3
+#: A point whose tangent plane is this close to parallel to the cut (the sine of the angle between their normals) is
+#: not carried onto it: there the surface runs along the plane and does not cross it.
+MIN_CROSSING_SINE = 0.3
+#: A point cloud's section is fitted by a parabola over its points this close (mm) to an end, and the end taken on it.
+END_FIT_RADIUS_MM = 2.0
+#: Crossings of a cut's side line with a point cloud's surface farther apart than this (mm) are different walls.
+WALL_GAP_MM = 1.0
 #: Half-width (mm) of the strip of a point cloud's section read as the bone's depth at one position across.
 STRIP_HALF_WIDTH_MM = 0.5
 #: Positions across the cut are sampled this far apart (mm) when the far cortex is sought under a blade.
@@ -81,7 +96,7 @@ class CutPlane:
 class Section:
     """The bone's section in a cut plane: ``points`` (K, 3) on the surface and their ``uv`` (K, 2) plane
     coordinates (across, depth). From a mesh, consecutive pairs of points are the crossing segments (``exact``);
-    from a point cloud they are the IPC points near the plane."""
+    from a point cloud they are the IPC points near the plane carried onto it along their tangent planes."""
 
     points: np.ndarray
     uv: np.ndarray
@@ -221,23 +236,28 @@ def cut_plane(origin, normal, depth=None):
     return CutPlane(origin=origin, normal=normal, depth=depth / np.linalg.norm(depth))
 
 
-def bone_section(plane, points, triangles=None, half_thickness_mm=SECTION_HALF_THICKNESS_MM):
+def bone_section(plane, points, triangles=None, half_thickness_mm=None, cloud=None):
     """The bone's Section in ``plane``: the crossing of the mesh (``points`` (V, 3) vertices, ``triangles`` (K, 3))
-    with the plane, or the IPC ``points`` (N, 3) within ``half_thickness_mm`` of it when no triangles are given.
+    with the plane, or, when no triangles are given, where the local surfaces of the IPC ``points`` (N, 3) within
+    ``half_thickness_mm`` of it cross it (default: ``SECTION_HALF_THICKNESS_MM`` or two of the cloud's median
+    spacings, the larger; module docstring). ``cloud``: the points' ``CloudSurface`` when already built.
 
     Raises:
         ValueError: the plane does not cross the bone.
     """
     points = np.asarray(points, dtype=np.float64)
-    heights = (points - plane.origin) @ plane.normal
     if triangles is not None and len(triangles):
+        heights = (points - plane.origin) @ plane.normal
         crossing = _mesh_crossing(points, np.asarray(triangles), heights)
         exact = True
     else:
-        crossing = points[np.abs(heights) < half_thickness_mm]
+        cloud = CloudSurface(points) if cloud is None else cloud
+        if half_thickness_mm is None:
+            half_thickness_mm = _band(cloud)
+        crossing = cloud.plane_crossing(plane.origin, plane.normal, half_thickness_mm, MIN_CROSSING_SINE)
         exact = False
     if len(crossing) == 0:
-        within = "" if exact else f" (no IPC point lies within {half_thickness_mm:g} mm of it)"
+        within = "" if exact else f" (no IPC point lies within {half_thickness_mm:.2g} mm of it)"
         raise ValueError(
             f"the cut plane through {_vector(plane.origin)} facing {_vector(plane.normal)} does not cross the "
             f"bone{within}; move the plane onto the bone"
@@ -263,16 +283,17 @@ def plan_cut(points, origin, normal, depth=None, extent_mm=None, triangles=None)
         raise ValueError(f"cut extent {extent_mm} mm: give a width above 0 mm, or none to cut across the whole bone")
     points = as_points(points, "IPC", min_count=3)
     plane = cut_plane(origin, normal, depth)
-    section = bone_section(plane, points, triangles)
+    cloud = None if triangles is not None and len(triangles) else CloudSurface(points)
+    section = bone_section(plane, points, triangles, cloud=cloud)
     if depth is None:
         plane = CutPlane(plane.origin, plane.normal, _narrowest_direction(plane, section.uv))
         section = Section(section.points, plane.to_plane(section.points)[:, :2], section.exact)
     low, high = section.across_range
     if extent_mm is None or (-extent_mm / 2.0 <= low and extent_mm / 2.0 >= high):
-        endpoints = _whole_bone_ends(section)
+        endpoints = _whole_bone_ends(section, plane)
         labels = WHOLE_BONE_LABELS
     else:
-        endpoints = _extent_corners(section, extent_mm)
+        endpoints = _extent_corners(section, extent_mm, plane, cloud)
         labels = EXTENT_LABELS
     return CutPlan(plane, None if extent_mm is None else float(extent_mm), section, endpoints, labels)
 
@@ -317,12 +338,46 @@ def _narrowest_direction(plane, uv):
     return direction if direction[np.argmax(np.abs(direction))] > 0 else -direction
 
 
-def _whole_bone_ends(section):
-    ends = [section.points[np.argmax(section.uv @ d)] for d in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))]
-    return np.array(ends)
+def _band(cloud):
+    """Half-thickness (mm) of the band of a point cloud's points carried onto a cut plane or a side line."""
+    return max(SECTION_HALF_THICKNESS_MM, 2.0 * cloud.spacing_mm)
 
 
-def _extent_corners(section, extent_mm):
+def _whole_bone_ends(section, plane):
+    directions = ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
+    if section.exact:  # a polygon's extreme lies at one of its vertices
+        return np.array([section.points[np.argmax(section.uv @ d)] for d in directions])
+    return plane.from_plane(np.array([_cloud_extreme(section.uv, np.array(d)) for d in directions]))
+
+
+def _cloud_extreme(uv, direction):
+    """(2,) the farthest point along ``direction`` (2,) of a point cloud's section curve (uv (K, 2), mm): the vertex
+    of a parabola fitted to the section's points within ``END_FIT_RADIUS_MM`` of the farthest one; that point itself
+    when the parabola does not open away from the direction or its vertex lies beyond half the radius."""
+    sideways = np.array([-direction[1], direction[0]])
+    best = int(np.argmax(uv @ direction))
+    near = np.linalg.norm(uv - uv[best], axis=1) < END_FIT_RADIUS_MM
+    offset = (uv[near] - uv[best]) @ sideways
+    height = uv[near] @ direction
+    vertex = _parabola_vertex(offset, height)
+    if vertex is None or height.max() - vertex[1] > END_FIT_RADIUS_MM / 4.0:
+        return uv[best]
+    return uv[best] + (vertex[1] - uv[best] @ direction) * direction + vertex[0] * sideways
+
+
+def _parabola_vertex(x, y):
+    """(x, y) of the top of the least-squares parabola through points (x, y), or None: too few points (< 6), a
+    parabola that does not open downwards, or a top beyond half ``END_FIT_RADIUS_MM`` from x = 0."""
+    if len(x) < 6:
+        return None
+    c2, c1, c0 = np.polyfit(x, y, 2)
+    if c2 >= 0.0:
+        return None
+    top = -c1 / (2.0 * c2)
+    return None if abs(top) > END_FIT_RADIUS_MM / 2.0 else np.array([top, c0 + c1 * top + c2 * top**2])
+
+
+def _extent_corners(section, extent_mm, plane, cloud=None):
     low, high = section.across_range
     corners = []
     for side in (-extent_mm / 2.0, extent_mm / 2.0):
@@ -331,14 +386,36 @@ def _extent_corners(section, extent_mm):
                 f"the cut's side at {side:+.1f} mm across lies off the bone (the bone spans {low:+.1f} to {high:+.1f} "
                 "mm across the plane's origin); centre the plane on the bone or change the extent"
             )
-        depths, points = section._depths_at(side)
-        if depths.size == 0:
+        if cloud is None:
+            depths, points = section._depths_at(side)
+            corners += [points[np.argmin(depths)], points[np.argmax(depths)]]
+            continue
+        depths = _cloud_side_depths(cloud, plane, side)
+        if depths is None:
             raise ValueError(
-                f"the IPC has no point within {STRIP_HALF_WIDTH_MM:g} mm of the cut's side at {side:+.1f} mm; give the "
-                "IPC as a surface (mesh) or a denser point cloud"
+                f"the IPC has no point within {2.0 * _band(cloud):.2g} mm of the cut's side at {side:+.1f} mm; give "
+                "the IPC as a surface (mesh) or a denser point cloud"
             )
-        corners += [points[np.argmin(depths)], points[np.argmax(depths)]]
+        corners += [plane.origin + side * plane.across + depth * plane.depth for depth in depths]
     return np.array(corners)
+
+
+def _cloud_side_depths(cloud, plane, side):
+    """(entry, far) depths (mm) where the side line across = ``side`` enters and leaves a point cloud's surface, or
+    None: the crossings of the line with the local surfaces of the cloud's points near it (``CloudSurface``), split
+    into walls where consecutive ones are more than ``WALL_GAP_MM`` apart; the median of the first and the last."""
+    # Points within 4 spacings of the line: 11 on average where it crosses a randomly sampled surface head on.
+    radius = 2.0 * _band(cloud)
+    crossings = np.sort(cloud.line_crossings(plane.origin + side * plane.across, plane.depth, radius))
+    if len(crossings) == 0:
+        return None
+    gaps = np.diff(crossings)
+    if gaps.size == 0 or gaps.max() <= WALL_GAP_MM:
+        return float(np.median(crossings)), float(np.median(crossings))
+    # More than two walls (an IPC with inner surfaces): the entry is the nearest group, the far the farthest.
+    walls = np.split(crossings, np.flatnonzero(gaps > WALL_GAP_MM) + 1)
+    first, last = walls[0], walls[-1]
+    return float(np.median(first)), float(np.median(last))
 
 
 def direction_word(vector):

@@ -1,4 +1,5 @@
-"""The whole registration: CR, then optionally ICP or RAMSICP (the paper), or the fused fit, with errors and warnings.
+"""The whole registration: CR, then optionally ICP or RAMSICP (the paper), point-to-plane ICP, or the fused fit, with
+errors and warnings.
 
 ``register`` is the one entry point the command line, the Slicer logic and the experiments call.
 """
@@ -10,18 +11,19 @@ from functools import lru_cache
 import numpy as np
 
 from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
+from .error_prediction import PoseUncertainty
 from .fused import (
     FLE_FLOOR_MM,
     RESTART_RATIO,
     FusedWeights,
     fused_fit,
     marker_fle,
-    predicted_errors,
     surface_sigma,
 )
 from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
+from .plane_icp import icp_point_to_plane
 from .surface_index import SurfaceIndex
 from .sweep import PAPER_SCALES, sweep_scales
 from .transforms import apply_transform
@@ -29,7 +31,7 @@ from .validation import as_points, check_not_collinear
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("cr", "cr-icp", "cr-ramsicp", "cr-fused")
+METHODS = ("cr", "cr-icp", "cr-icp-plane", "cr-ramsicp", "cr-fused")
 
 #: The method the command line, the demo, the Slicer module and the scenarios use unless told otherwise: the one
 #: that measures best without targets (README, "The fused registration"): markers and probe points in one fit.
@@ -77,8 +79,9 @@ class RegistrationResult:
 
     ``reference_to_image`` is the paper's ^P_I T (eq. 10); ``coarse_reference_to_image`` the CR alone (eq. 5).
     ``residuals_mm`` are the distances of the registered probe points to the IPC, ``ppc_rms_mm`` their RMS.
-    ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets; ``predicted_cr_tre_mm`` is the
-    Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm``.
+    ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets in both frames; ``predicted_cr_tre_mm`` is the
+    Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm`` (image targets are
+    enough for it, and for the predicted errors below). ``targets_image`` are the image targets given, if any.
 
     ``alarms`` are the checks the result failed, in words (they lead ``warnings`` too): the fine step moved the probe
     points or targets from the CR far more than the marker error explains (``fine_shift_mm`` is its largest move),
@@ -89,6 +92,9 @@ class RegistrationResult:
     ``pose_covariance`` (6, 6: small rotation in rad about ``covariance_centre_mm``, then translation in mm, image
     coordinates) and, with targets, ``predicted_tre_mm``, the registration error that covariance predicts at each
     target (eq. F4 of ``core.fused``); ``predicted_error_mm`` gives it at any image point, e.g. along a planned cut.
+    ``uncertainty`` (``core.error_prediction.PoseUncertainty``) holds the covariance's parts: the predicted error's
+    mean and percentiles (``predicted_tre_mean_mm``, ``predicted_tre_95_mm``, with the FLE estimate's own
+    uncertainty) and the effect of another touch (``core.touch_guidance``).
     """
 
     method: str
@@ -114,6 +120,25 @@ class RegistrationResult:
     predicted_tre_mm: np.ndarray = None
     alarms: tuple = ()
     fine_shift_mm: float = None
+    targets_image: np.ndarray = None
+    uncertainty: object = None
+
+    @property
+    def predicted_tre_mean_mm(self):
+        """(T,) the mean error length cr-fused predicts at each target (E1 of ``core.error_prediction``), or None;
+        the figure to compare with the mean of measured target errors (the RMS is larger: 1.09 times for an
+        isotropic error)."""
+        if self.uncertainty is None or self.targets_image is None:
+            return None
+        return self.uncertainty.errors_at(self.targets_image).mean_mm
+
+    @property
+    def predicted_tre_95_mm(self):
+        """(T,) the error cr-fused predicts each target stays within with 95 % confidence, the markers' FLE
+        estimate's own uncertainty included (E2 of ``core.error_prediction``), or None."""
+        if self.uncertainty is None or self.targets_image is None:
+            return None
+        return self.uncertainty.errors_at(self.targets_image).quantile_mm(0.95)
 
     @property
     def predicted_tre_rms_mm(self):
@@ -123,10 +148,11 @@ class RegistrationResult:
         return float(np.sqrt(np.mean(np.square(self.predicted_tre_mm))))
 
     def predicted_error_mm(self, points_image):
-        """Predicted RMS registration error (mm) at each (T, 3) image point from the fused covariance (cr-fused)."""
-        if self.pose_covariance is None:
+        """Predicted RMS registration error (mm) at each (T, 3) image point from the fused covariance (cr-fused;
+        ``core.error_prediction``)."""
+        if self.uncertainty is None:
             raise ValueError(f"{self.method} gives no pose covariance; the predicted error needs cr-fused")
-        return predicted_errors(self.pose_covariance, self.covariance_centre_mm, points_image)
+        return self.uncertainty.errors_at(points_image).rms_mm
 
     def to_dict(self):
         """JSON-ready dictionary with every figure of the result."""
@@ -157,6 +183,9 @@ class RegistrationResult:
             "covariance_centre_mm": listed(self.covariance_centre_mm),
             "predicted_tre_mm": listed(self.predicted_tre_mm),
             "predicted_tre_rms_mm": self.predicted_tre_rms_mm,
+            "predicted_tre_mean_mm": listed(self.predicted_tre_mean_mm),
+            "predicted_tre_95_mm": listed(self.predicted_tre_95_mm),
+            "targets_image": listed(self.targets_image),
             "alarms": list(self.alarms),
             "fine_shift_mm": self.fine_shift_mm,
         }
@@ -178,15 +207,18 @@ def register(
     min_radius_mm=DEFAULT_MIN_RADIUS_MM,
     probe_noise_mm=DEFAULT_PROBE_NOISE_MM,
 ):
-    """Register the patient (reference frame) to the image: CR, CR-ICP, CR-RAMSICP or the fused fit (cr-fused).
+    """Register the patient (reference frame) to the image: CR, CR-ICP (point to point or to plane), CR-RAMSICP or
+    the fused fit (cr-fused).
 
     Args:
         ipc: SurfaceIndex, or (M, 3) IPC points in image coordinates (mm).
         ppc: (N, 3) probe points in reference coordinates (mm), N >= 3, not collinear.
         markers_image: (K, 3) marker-sphere centres in the image (mm), K >= 3.
         markers_patient: (K, 3) the same centres in reference coordinates, same order.
-        targets_image, targets_patient: optional (T, 3) targets for the TRE (eq. 11).
-        method: 'cr', 'cr-icp', 'cr-ramsicp' or 'cr-fused' (default ``DEFAULT_METHOD``).
+        targets_image, targets_patient: optional (T, 3) targets for the TRE (eq. 11); the image targets alone (the
+            plan's endpoints) give the predicted error there, without a measured TRE.
+        method: 'cr', 'cr-icp' (the paper's point-to-point ICP), 'cr-icp-plane' (point-to-plane ICP,
+            ``core.plane_icp``), 'cr-ramsicp' or 'cr-fused' (default ``DEFAULT_METHOD``).
         scale: L for a single RAMSICP run (default ``DEFAULT_SCALE``); with ``sweep`` it is the 'fixed' L.
         sweep: run RAMSICP for every L in ``scales`` and choose one by ``policy``.
         policy: one of POLICIES; default 'targets' when targets are given, else 'rms-plateau'.
@@ -226,6 +258,8 @@ def register(
         warnings += _fused_warnings(fused, coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
     elif method == "cr-icp":
         fine = icp(index, ppc, coarse.transform)
+    elif method == "cr-icp-plane":
+        fine = icp_point_to_plane(index, ppc, coarse.transform)
     elif method == "cr-ramsicp":
         if sweep:
             chosen_policy = policy or ("targets" if targets_patient is not None else "rms-plateau")
@@ -277,13 +311,17 @@ def register(
         probe_noise_mm,
     )
     warnings = list(alarms) + warnings
-    tre = errors = predicted = predicted_fused = None
+    tre = errors = predicted = predicted_fused = uncertainty = None
+    if fused is not None:
+        fre_fle = fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
+        uncertainty = PoseUncertainty.from_fit(fused, None if fle_mm is not None else len(coarse.residuals_mm), fre_fle)
     if targets_patient is not None:
         errors = target_errors(transform, targets_patient, targets_image)
         tre = float(np.sqrt(np.mean(errors**2)))
+    if targets_image is not None:
         predicted = predicted_tre(np.asarray(markers_image, float), targets_image, fle)
         if fused is not None:
-            predicted_fused = fused.predicted_errors_mm(targets_image)
+            predicted_fused = uncertainty.errors_at(targets_image).rms_mm
     for warning in warnings:
         logger.info("registration warning: %s", warning)
     return RegistrationResult(
@@ -310,6 +348,8 @@ def register(
         predicted_tre_mm=predicted_fused,
         alarms=alarms,
         fine_shift_mm=shift,
+        targets_image=targets_image,
+        uncertainty=uncertainty,
     )
 
 
@@ -412,11 +452,12 @@ def _fused_warnings(fused, coarse, markers_patient, markers_image):
             f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
             "matched to the wrong wall of a thin bone does this."
         )
-    if fused.starts > 1:
+    if fused.chosen_start > 0:
         warnings.append(
             f"cr-fused started again: its first fit ended with the probe points more than {RESTART_RATIO:g} times "
-            f"their noise from the surface, so it was run from {fused.starts - 1} poses around the CR and the best "
-            "was kept. Check the CR (marker order and centres) and that the probe points were touched on this bone."
+            "their noise from the surface, or fit its data worse than their noise allows, and of "
+            f"{fused.starts - 1} poses around the CR another one led to a better fit, which was kept. Check the CR "
+            "(marker order and centres) and that the probe points were touched on this bone."
         )
     prior = surface_sigma(weights.probe_noise_mm, weights.ipc_spacing_mm)
     if weights.surface_sigma_mm > SURFACE_NOISE_RATIO * prior:
@@ -446,12 +487,17 @@ def select_scale(entries, policy, fixed_scale=DEFAULT_SCALE):
 
 
 def _check_targets(targets_patient, targets_image):
-    if (targets_patient is None) != (targets_image is None):
-        raise ValueError("targets: give them in both frames (image and patient) or in neither")
-    if targets_patient is None:
+    if targets_patient is not None and targets_image is None:
+        raise ValueError(
+            "targets: patient targets need the same targets in the image (the plan's endpoints); give the image "
+            "targets too, or only them for the predicted error"
+        )
+    if targets_image is None:
         return None, None
-    targets_patient = as_points(targets_patient, "targets in the patient (reference)", min_count=1)
     targets_image = as_points(targets_image, "targets in the image", min_count=1)
+    if targets_patient is None:
+        return None, targets_image
+    targets_patient = as_points(targets_patient, "targets in the patient (reference)", min_count=1)
     if targets_patient.shape != targets_image.shape:
         raise ValueError(
             f"targets: {len(targets_patient)} in the patient but {len(targets_image)} in the image; "

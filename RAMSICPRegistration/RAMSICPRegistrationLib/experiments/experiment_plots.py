@@ -1,4 +1,5 @@
-"""The reproduction's figures (Figs. 7-10), one PNG each, a panel per bone, every mark explained on the figure.
+"""The reproduction's figures (Figs. 7-10 and the guided touches), one PNG each, a panel per bone, every mark explained
+on the figure.
 
 Each figure says what its bars or bands are (mean +- 1 sd over the trials, with their number), draws the paper's
 own numbers where the paper gives them, and offsets series that share an x so none hides another.
@@ -6,7 +7,7 @@ own numbers where the paper gives them, and offsets series that share an x so no
 
 import numpy as np
 
-from .experiments import FUSED, PAPER, TARGET_FREE
+from .experiments import FUSED, PAPER, PLANE, TARGET_FREE
 
 RAMSICP_PAPER = "CR-RAMSICP (paper's L)"
 RAMSICP_FREE = f"CR-RAMSICP ({TARGET_FREE})"
@@ -14,6 +15,7 @@ RAMSICP_FREE = f"CR-RAMSICP ({TARGET_FREE})"
 COLOURS = {
     "CR": "#7f7f7f",
     "CR-ICP": "#1f77b4",
+    PLANE: "#9467bd",
     RAMSICP_PAPER: "#ff7f0e",
     RAMSICP_FREE: "#2ca02c",
     FUSED: "#d62728",
@@ -21,6 +23,7 @@ COLOURS = {
 SHORT = {
     "CR": "CR",
     "CR-ICP": "CR-ICP",
+    PLANE: "CR-ICP\npoint to plane",
     RAMSICP_PAPER: "CR-RAMSICP\n(paper's L)",
     RAMSICP_FREE: f"CR-RAMSICP\n({TARGET_FREE})",
     FUSED: FUSED,
@@ -126,7 +129,7 @@ def plot_fig8(data, path):
 def plot_fig9(data, path):
     """TRE against the CR error, a panel per bone, the series side by side, the 1 mm goal labelled."""
     plt, figure, panels = _panels(data["bones"])
-    methods = ("CR-ICP", RAMSICP_PAPER, RAMSICP_FREE, FUSED)
+    methods = ("CR-ICP", PLANE, RAMSICP_PAPER, RAMSICP_FREE, FUSED)
     goal = PAPER["fig9_below_1_mm_up_to"]
     for axes, (bone, bone_data) in zip(panels, data["bones"].items()):
         levels = np.array([float(level) for level in bone_data["levels"]])
@@ -175,7 +178,61 @@ def plot_fig10b(data, path):
     )
 
 
-PLOTS = {"fig7": plot_fig7, "fig8": plot_fig8, "fig9": plot_fig9, "fig10a": plot_fig10a, "fig10b": plot_fig10b}
+#: The guided experiment's arms, in the order and colour its figure uses.
+ARM_STYLES = {
+    "guided": ("#d62728", "guided by the predicted TRE (cr-fused)"),
+    "free": ("#1f77b4", "free: anywhere on the exposed bone"),
+    "paper": ("#7f7f7f", "the paper's 8 sub-areas, one each in turn"),
+}
+
+
+def plot_guided(data, path):
+    """TRE against the number of touches, a panel per bone: guided, free and the paper's sub-areas, +- 1 sd bands,
+    the guided touches' own predicted TRE, and the check: 12 guided touches against 40 free ones + 0.05 mm."""
+    plt, figure, panels = _panels(data["bones"])
+    for axes, (bone, bone_data) in zip(panels, data["bones"].items()):
+        counts = np.array(bone_data["counts"])
+        check = bone_data["check"]
+        for arm, (colour, label) in ARM_STYLES.items():
+            mean, sd = (np.array(bone_data["arms"][arm][key]) for key in ("mean_tre_mm", "sd_tre_mm"))
+            axes.plot(counts, mean, color=colour, linewidth=1.5, label=label)
+            axes.fill_between(counts, mean - sd, mean + sd, color=colour, alpha=0.12, linewidth=0)
+        axes.plot(counts, bone_data["guided_predicted_mm"], color=ARM_STYLES["guided"][0], linestyle=":",
+                  linewidth=1.2, label="guided: its predicted TRE (RMS)")  # fmt: skip
+        level = check["free_mm"] + check["tolerance_mm"]
+        axes.axhline(level, color="black", linestyle="--", linewidth=0.8)
+        axes.axvline(check["guided_touches"], color="black", linestyle=(0, (1, 3)), linewidth=0.8)
+        axes.plot([check["guided_touches"]], [check["guided_mm"]], "o", color=ARM_STYLES["guided"][0], markersize=5)
+        verdict = "met" if check["met"] else "not met"
+        _label(axes, f"{_bone(bone)} (n = {check['trials']} trials; 12 guided {check['guided_mm']:.2f} mm vs "
+                     f"40 free {check['free_mm']:.2f} mm: {verdict})", "touches (probe points)")  # fmt: skip
+        axes.set_xlim(counts[0] - 0.5, counts[-1] + 0.5)
+        top = max(np.max(np.array(bone_data["arms"][arm]["mean_tre_mm"])[counts >= 5]) for arm in ARM_STYLES)
+        axes.set_ylim(0.0, 1.3 * top)
+    handles, labels = panels[0].get_legend_handles_labels()
+    handles += [plt.Line2D([], [], color="black", linestyle="--", linewidth=0.8),
+                plt.Line2D([], [], color="black", linestyle=(0, (1, 3)), linewidth=0.8)]  # fmt: skip
+    labels += ["40 free touches' mean TRE + 0.05 mm (the target)", "12 touches"]
+    _finish(
+        plt,
+        figure,
+        path,
+        "Guided touches: TRE at the plan's targets against the number of touches (cr-fused, markers placed by hand)",
+        handles,
+        labels,
+        "Lines: mean over the trials; bands: +- 1 sd. The same markers and targets in every arm; the guided and free "
+        "touches start from the same 3 free ones. TRE: eq. 11 at the 4 measured targets.",
+    )
+
+
+PLOTS = {
+    "fig7": plot_fig7,
+    "fig8": plot_fig8,
+    "fig9": plot_fig9,
+    "fig10a": plot_fig10a,
+    "fig10b": plot_fig10b,
+    "guided": plot_guided,
+}
 
 
 def _side_by_side(axes, x, rows, methods, spacing):

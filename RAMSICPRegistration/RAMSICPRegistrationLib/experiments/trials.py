@@ -1,4 +1,5 @@
-"""One simulated acquisition registered every way: the paper's CR, CR-ICP and CR-RAMSICP for every L, and cr-fused."""
+"""One simulated acquisition registered every way: the paper's CR, CR-ICP and CR-RAMSICP for every L, the point-to-plane
+ICP (cr-icp-plane) and cr-fused."""
 
 from dataclasses import dataclass
 
@@ -9,15 +10,16 @@ from ..core.registration import FUSED_WARNINGS, POLICIES, register, select_scale
 
 @dataclass(frozen=True)
 class TrialResult:
-    """TRE (mm, eq. 11) of one trial: CR, CR-ICP, the RAMSICP sweep, the L each policy picks, and cr-fused.
+    """TRE (mm, eq. 11) of one trial: CR, CR-ICP, the RAMSICP sweep, the L each policy picks, cr-icp-plane and cr-fused.
 
     Attributes:
-        cr_mm, icp_mm: TRE of CR and CR-ICP.
+        cr_mm, icp_mm: TRE of CR and CR-ICP (the paper's point-to-point ICP).
         scales: (S,) the sweep's L values; sweep_tre_mm: (S,) RAMSICP's TRE at each.
         chosen: policy -> (L, TRE) for each of ``POLICIES``.
         fused_mm: TRE of cr-fused; fused_predicted_mm: the RMS over the targets of its predicted TRE.
         fused_warned: cr-fused gave an alarm (``RegistrationResult.alarms``) or a warning of its own (markers and
             surface disagree, noisy surface, no settling).
+        icp_plane_mm: TRE of cr-icp-plane (point-to-plane ICP from the CR, ``core.plane_icp``).
     """
 
     cr_mm: float
@@ -28,6 +30,7 @@ class TrialResult:
     fused_mm: float
     fused_predicted_mm: float
     fused_warned: bool
+    icp_plane_mm: float
 
     def ramsicp_mm(self, policy):
         return self.chosen[policy][1]
@@ -45,6 +48,7 @@ def evaluate_trial(index, data, markers_image=None):
     )
     cr = register(method="cr", **common).tre_mm
     icp = register(method="cr-icp", **common).tre_mm
+    icp_plane = register(method="cr-icp-plane", **common).tre_mm
     sweep = register(method="cr-ramsicp", sweep=True, policy="targets", **common).sweep
     fused = register(method="cr-fused", **common)
     chosen = {}
@@ -60,4 +64,5 @@ def evaluate_trial(index, data, markers_image=None):
         fused_mm=fused.tre_mm,
         fused_predicted_mm=fused.predicted_tre_rms_mm,
         fused_warned=bool(fused.alarms) or any(warning.startswith(FUSED_WARNINGS) for warning in fused.warnings),
+        icp_plane_mm=icp_plane,
     )

@@ -17,6 +17,11 @@ each sub-area.
 
 The IPC here is sampled on the mesh; ``ct_phantom.make_ct_phantom`` renders the same patient as a CT, whose
 image side replaces it, and ``simulate_trial`` serves both.
+
+The **exposed surface** is the bone the surgeon lays bare to touch: the true surface within ``EXPOSURE_MARGIN_MM`` of
+the sub-areas and facing the same way as they do (within ``EXPOSURE_ANGLE_DEG``). Touches anywhere on it
+(``touch``, ``random_touches``) serve the guided experiment (``experiments.guided``): where the touch guidance
+sends the probe, and where a surgeon touching freely might.
 """
 
 from dataclasses import dataclass
@@ -29,6 +34,10 @@ from ..core.paired_point import rigid_procrustes
 from ..core.transforms import apply_transform, invert_transform, make_transform, rotation_about_axis
 
 PAPER_IPC_POINTS = 194_568
+#: The exposed surface reaches this far (mm) beyond the sub-areas ...
+EXPOSURE_MARGIN_MM = 15.0
+#: ... where the bone faces within this angle (degrees) of the sub-areas' mean outward normal.
+EXPOSURE_ANGLE_DEG = 60.0
 ANATOMIES = ("long-bone", "flat-bone")
 #: Height of the planned cut below the top of the bone (mm): a high tibial osteotomy, a cut across the upper wing.
 CUT_BELOW_TOP_MM = {"long-bone": 40.0, "flat-bone": 30.0}
@@ -67,6 +76,7 @@ class VirtualPatient:
     sub_area_points: tuple  # 8 arrays (K_j, 3): true surface points of each sub-area, image coordinates
     cut_height_mm: float
     anatomy: str = "long-bone"  # one of ANATOMIES
+    exposed_points: np.ndarray = None  # (E, 3) true surface points of the exposed bone, image coordinates
 
     @classmethod
     def from_mesh(
@@ -130,6 +140,7 @@ class VirtualPatient:
             sub_area_points=sub_areas,
             cut_height_mm=float(cut_height),
             anatomy=anatomy,
+            exposed_points=_exposed_surface(dense, dense_normals, sub_areas),
         )
 
     @property
@@ -188,6 +199,22 @@ class VirtualPatient:
             targets_image=self.targets_image.copy(),
         )
 
+    def touch(self, rng, points_image, probe_noise_mm=0.25):
+        """Probe touches (N, 3) in reference coordinates at the exposed surface's points nearest to the (N, 3) image
+        points asked for, each with the probe's isotropic noise (``probe_noise_mm`` RMS 3-D)."""
+        from scipy.spatial import cKDTree
+
+        _, nearest = cKDTree(self.exposed_points).query(np.asarray(points_image, dtype=np.float64).reshape(-1, 3))
+        touched = apply_transform(invert_transform(self.reference_to_image), self.exposed_points[nearest])
+        return touched + _isotropic_noise(rng, touched.shape, probe_noise_mm)
+
+    def random_touches(self, rng, count, probe_noise_mm=0.25):
+        """``count`` probe touches (count, 3) in reference coordinates, drawn uniformly over the exposed surface's
+        area (its points are area-uniform), each with the probe's noise."""
+        chosen = self.exposed_points[rng.choice(len(self.exposed_points), size=count, replace=False)]
+        touched = apply_transform(invert_transform(self.reference_to_image), chosen)
+        return touched + _isotropic_noise(rng, touched.shape, probe_noise_mm)
+
 
 def sample_surface(vertices, triangles, count, rng):
     """``count`` points uniformly distributed over a triangle mesh's area, with outward face normals.
@@ -205,6 +232,19 @@ def sample_surface(vertices, triangles, count, rng):
     points = a[faces] + u[:, None] * (b - a)[faces] + v[:, None] * (c - a)[faces]
     normals = cross[faces] / (2.0 * areas[faces])[:, None]
     return points, normals
+
+
+def _exposed_surface(points, normals, sub_areas):
+    """(E, 3) the surface points (of ``points`` (N, 3), outward ``normals`` (N, 3)) within ``EXPOSURE_MARGIN_MM`` of
+    the sub-areas and facing within ``EXPOSURE_ANGLE_DEG`` of their mean outward normal."""
+    from scipy.spatial import cKDTree
+
+    touched = np.vstack(sub_areas)
+    distances, _ = cKDTree(touched).query(points, distance_upper_bound=EXPOSURE_MARGIN_MM)
+    inside = np.isfinite(distances)
+    facing = normals[distances == 0.0].mean(axis=0)  # the sub-areas' own points are among ``points``
+    facing /= np.linalg.norm(facing)
+    return points[inside & (normals @ facing > np.cos(np.radians(EXPOSURE_ANGLE_DEG)))]
 
 
 def _isotropic_noise(rng, shape, rms_mm):
