@@ -13,9 +13,12 @@ import numpy as np
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.sweep import MAX_SCALES
 from ..io.file_checks import check_output_file
-from ._arguments import FINITE, POSITIVE_MM
+from ._arguments import COUNT, FINITE, POSITIVE_MM
 from ._console import decimals
 from .exit_codes import EXIT_ALARM
+
+#: The inputs whose frame can be given one by one (``--<input>-space``).
+SPACE_OPTIONS = ("ipc", "ppc", "markers-image", "markers-patient", "targets-image", "targets-patient")
 
 
 def add_parser(commands):
@@ -93,7 +96,24 @@ def add_parser(commands):
         type=str.upper,
         choices=("RAS", "LPS"),
         default="RAS",
-        help="frame of files that do not state one (default RAS)",
+        help="frame of files that do not state one (default RAS); the options below set it for one input",
+    )
+    for option in SPACE_OPTIONS:
+        reg.add_argument(
+            f"--{option}-space",
+            type=str.upper,
+            choices=("RAS", "LPS"),
+            help=f"frame of the --{option} file when it states none (default --untagged-space), e.g. LPS for a "
+            "model exported without its SPACE tag",
+        )
+    reg.add_argument(
+        "--include-far",
+        type=COUNT,
+        nargs="+",
+        default=(),
+        metavar="N",
+        help="probe points (numbered from 1) to keep in the fit although they lie far from the bone after the "
+        "coarse registration (left out otherwise, and listed)",
     )
     reg.add_argument(
         "--json",
@@ -111,7 +131,10 @@ def run(arguments):
     from ..io.point_files import read_points
     from ..io.surface_files import read_surface_points
 
-    space = arguments.untagged_space
+    space = {
+        option: getattr(arguments, option.replace("-", "_") + "_space") or arguments.untagged_space
+        for option in SPACE_OPTIONS
+    }
     if arguments.targets_patient is not None and arguments.targets_image is None:
         raise ValueError("--targets-patient needs the same targets in the image: give --targets-image too")
     guided = arguments.reachable is not None or arguments.target_tre is not None
@@ -125,16 +148,19 @@ def run(arguments):
     inputs += (arguments.targets_image, arguments.targets_patient, arguments.reachable)
     check_output_file(arguments.json, "--json", (".json",), inputs)
     clock = time.perf_counter()
-    ipc = read_surface_points(arguments.ipc, space)
-    ppc = read_points(arguments.ppc, space).points
+    ipc = read_surface_points(arguments.ipc, space["ipc"])
+    ppc = read_points(arguments.ppc, space["ppc"]).points
     markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
     targets_image = targets_patient = reachable = None
     if arguments.targets_image:
-        targets_image = read_points(arguments.targets_image, space).points
+        targets_image = read_points(arguments.targets_image, space["targets-image"]).points
     if arguments.targets_patient:
-        targets_patient = read_points(arguments.targets_patient, space).points
+        targets_patient = read_points(arguments.targets_patient, space["targets-patient"]).points
     if arguments.reachable:
-        reachable = read_points(arguments.reachable, space).points
+        reachable = read_points(arguments.reachable, space["targets-image"]).points
+    far_kept = [number - 1 for number in arguments.include_far]
+    if any(number > len(ppc) for number in arguments.include_far):
+        raise ValueError(f"--include-far {max(arguments.include_far)}: {arguments.ppc} has {len(ppc)} probe points")
     index = SurfaceIndex(ipc)
     result = register(
         index,
@@ -149,6 +175,7 @@ def run(arguments):
         scales=scales,
         policy=arguments.policy,
         fle_mm=arguments.fle,
+        include_far=far_kept,
     )
     guidance = None
     if result.uncertainty is not None and targets_image is not None:
@@ -176,17 +203,19 @@ def run(arguments):
 
 
 def _read_markers_pair(arguments, space):
-    """Image and patient marker centres, paired by marker number; flagged ones refused unless accepted.
+    """Image and patient marker centres, paired by marker number or row and checked by their distances
+    (``pair_marker_sets``: another order is re-paired and said); flagged ones refused unless accepted.
 
-    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): a warning for each flagged marker used.
+    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): the re-pairing, and each flagged marker used.
     """
-    from ..io.marker_files import flagged_message, pair_markers, read_markers
+    from ..io.marker_files import flagged_message, pair_marker_sets, read_markers
 
-    image = read_markers(arguments.markers_image, space)
-    patient = read_markers(arguments.markers_patient, space)
-    markers_image, markers_patient, _ = pair_markers(image, patient)
+    image = read_markers(arguments.markers_image, space["markers-image"])
+    patient = read_markers(arguments.markers_patient, space["markers-patient"])
+    pairing = pair_marker_sets(image, patient)
+    markers_image, markers_patient = pairing.image, pairing.patient
     if not image.flagged():
-        return markers_image, markers_patient, []
+        return markers_image, markers_patient, list(pairing.warnings)
     flagged = flagged_message(image)
     if not arguments.accept_flagged_markers:
         raise ValueError(
@@ -197,7 +226,8 @@ def _read_markers_pair(arguments, space):
     return (
         markers_image,
         markers_patient,
-        [
+        list(pairing.warnings)
+        + [
             f"{flagged} in {arguments.markers_image} (flagged by ramsicp ipc), used as you asked: the coarse "
             "registration may be off by that sphere's error"
         ],

@@ -158,7 +158,7 @@ def _read_markups_json(path):
             continue
         position = control_point.get("position")
         if not isinstance(position, list) or len(position) != 3:
-            raise PointFileError(path, f"control point {number} has no 3-number 'position'")
+            raise PointFileError(path, f"control point {number + 1} has no 3-number 'position'")
         points.append(position)
         labels.append(str(control_point.get("label", "")))
     if not points:
@@ -222,9 +222,24 @@ def _write_fcsv(path, points, labels):
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+#: Column names a text file's header may give its coordinates, with the frame they state (None: not stated). Slicer's
+#: markups control points table (``label,l,p,s,defined,...`` or ``label,r,a,s,...``) names them by its frame.
+_COORDINATE_COLUMNS = ((("x", "y", "z"), None), (("r", "a", "s"), "RAS"), (("l", "p", "s"), "LPS"))
+#: A number written with a decimal comma, as spreadsheets in many locales write them: ``-12,5``.
+_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+(?:[eE][-+]?\d+)?")
+
+
 def _read_text(path):
-    space, points = None, []
-    for line_number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    """Points of a .csv/.txt file: one point per line, x y z separated by commas, semicolons, tabs or spaces.
+
+    A header line of column names picks the coordinates by name in any order (``z,y,x``; Slicer's control points
+    table ``label,l,p,s,defined,...``, whose ``l,p,s`` or ``r,a,s`` names also state the frame; rows with
+    ``defined`` 0 are skipped). Decimal commas are read when the columns are separated by something else
+    (``1,5;2,5;3,5``); separated by commas as well they cannot be told apart from the separators, and the line is
+    refused with that cause.
+    """
+    space, points, labels, columns = None, [], [], None
+    for line_number, line in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), start=1):
         stripped = line.strip()
         if not stripped:
             continue
@@ -232,19 +247,75 @@ def _read_text(path):
             match = re.search(r"SPACE\s*=\s*(RAS|LPS)", stripped, re.IGNORECASE)
             space = match.group(1).upper() if match else space
             continue
-        fields = [value for value in re.split(r"[,;\s]+", stripped) if value]
+        separator = next((mark for mark in (";", "\t") if mark in stripped), "," if "," in stripped else None)
+        fields = [value.strip() for value in (stripped.split(separator) if separator else stripped.split())]
+        if separator in (";", "\t"):
+            fields = [value.replace(",", ".") if _DECIMAL_COMMA.fullmatch(value) else value for value in fields]
+        if columns is None and not points and not any(_is_number(value) for value in fields if value):
+            columns, stated = _header_columns(path, line_number, fields)
+            space = stated or space
+            continue
+        if columns is not None:
+            point, label, defined = _named_row(path, line_number, fields, columns, stripped)
+            if defined:
+                points.append(point)
+                labels.append(label)
+            continue
+        fields = [value for value in fields if value]
         try:
             values = [float(value) for value in fields]
         except ValueError:
-            if not points and all(re.fullmatch(r"[A-Za-z_ ]+", value) for value in fields):
-                continue  # a column header such as "x,y,z"
             raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {stripped!r}") from None
         if len(values) != 3:
-            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {len(values)}")
+            hint = ""
+            if separator == "," and len(values) == 6:
+                hint = (
+                    " (decimal commas? '1,5,2,5,3,5' cannot be told from six numbers: write decimals with a point, "
+                    "or separate the columns by ';' or tabs)"
+                )
+            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {len(values)}{hint}")
         points.append(values)
+        labels.append("")
     if not points:
         raise PointFileError(path, "holds no points (expected one 'x y z' line per point)")
-    return points, None, space
+    return points, labels if any(labels) else None, space
+
+
+def _is_number(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_columns(path, line_number, fields):
+    """{'x': column, 'y': ..., 'z': ..., optionally 'label', 'defined'} from a header line, and the frame its
+    coordinate names state (or None)."""
+    names = [value.lower() for value in fields]
+    for axes, stated in _COORDINATE_COLUMNS:
+        if all(axis in names for axis in axes):
+            columns = {key: names.index(axis) for key, axis in zip("xyz", axes)}
+            columns.update({key: names.index(key) for key in ("label", "defined") if key in names})
+            return columns, stated
+    raise PointFileError(
+        path,
+        f"line {line_number}: the header {','.join(fields)!r} names no coordinate columns; name them x,y,z (any "
+        "order), r,a,s or l,p,s (as Slicer's control points table)",
+    )
+
+
+def _named_row(path, line_number, fields, columns, text):
+    """(point [x, y, z], label, defined) of a data line read by its header's columns."""
+    try:
+        point = [float(fields[columns[axis]]) for axis in "xyz"]
+    except (IndexError, ValueError):
+        raise PointFileError(
+            path, f"line {line_number}: expected numbers in the header's coordinate columns, got {text!r}"
+        ) from None
+    label = fields[columns["label"]] if "label" in columns and columns["label"] < len(fields) else ""
+    defined = "defined" not in columns or columns["defined"] >= len(fields) or fields[columns["defined"]] != "0"
+    return point, label, defined
 
 
 def _read_npy(path):
