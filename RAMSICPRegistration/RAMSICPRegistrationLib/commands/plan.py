@@ -1,11 +1,11 @@
 """``ramsicp plan``: an osteotomy cut planned on the image point cloud: its plane, its four endpoints on the bone
 and the tool path, in image coordinates and, given ImageToRobotBase (eq. 4), the robot's."""
 
-import json
 import time
 from pathlib import Path
 
 from ..core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..io.matrix_files import read_matrix
 from ._arguments import FINITE
@@ -95,7 +95,7 @@ def run(arguments):
         far_margin_mm=arguments.far_margin,
     )
     document = plan_document(plans, path, image_to_base)
-    arguments.out.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    write_json_atomic(arguments.out, document)
     section = "exact (mesh)" if plans[0].section.exact else "from the IPC points within 0.3 mm"
     print(f"IPC              {arguments.ipc}: {len(points):,} points; section {section}")
     for number, plan in enumerate(plans):

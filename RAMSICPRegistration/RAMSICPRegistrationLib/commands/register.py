@@ -3,7 +3,6 @@ step), with FRE, TRE and the per-point residuals; given the plan's targets in th
 there, the next touch that lowers it most and, with a limit, whether it is enough (``core.touch_guidance``); exit 4
 when the result fails a check."""
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -12,6 +11,7 @@ import numpy as np
 
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.sweep import MAX_SCALES
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ._arguments import COUNT, FINITE, POSITIVE_MM
 from ._console import decimals
@@ -187,7 +187,7 @@ def run(arguments):
         if guidance is not None:
             document.update(guidance_fields(guidance))
         document["seconds"] = seconds
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     loud = marker_warnings + list(result.alarms)
     summary = _format_result(result, len(ipc), seconds, guidance)
     print("".join(f"WARNING: {warning}\n" for warning in loud) + summary)

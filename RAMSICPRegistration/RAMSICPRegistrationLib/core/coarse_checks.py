@@ -89,8 +89,8 @@ def diagnose_far_points(index, ppc, markers_patient, markers_image, touches, fre
     whether a tried fix explained it).
 
     Each candidate mistake is undone on the data (the probe points scaled to mm, mirrored LPS/RAS, the image markers
-    mirrored, which is also the IPC mirrored) and the CR applied again; one under which most points come within their limits is
-    named. Otherwise tracker coordinates (or another session's points) are named as the likely causes.
+    mirrored, which is also the IPC mirrored) and the CR applied again; one under which most points come within
+    their limits is named. Otherwise tracker coordinates (or another session's points) are named as the likely causes.
     """
     median = float(np.median(touches.distances_mm))
     share = f"{int(touches.far.sum())} of {len(ppc)} probe points lie far from the bone after the coarse " + (
@@ -120,19 +120,26 @@ def diagnose_far_points(index, ppc, markers_patient, markers_image, touches, fre
 def _candidate_fixes(ppc, markers_image):
     """((probe points, image markers) with one mistake undone, what to tell the user) for each candidate."""
     for factor, words in _UNITS:
-        yield (ppc * factor, markers_image), (
-            f"multiplied by {factor:g} they fit the bone, so the probe points look to be {words}; give them in mm"
+        yield (
+            (ppc * factor, markers_image),
+            (f"multiplied by {factor:g} they fit the bone, so the probe points look to be {words}; give them in mm"),
         )
-    yield (ppc @ _LPS, markers_image), (
-        "mirrored from LPS to RAS they fit the bone, so the probe points and the patient marker centres are in "
-        "different frames (one file LPS read as RAS); give the untagged one's frame (--ppc-space or "
-        "--markers-patient-space LPS)"
+    yield (
+        (ppc @ _LPS, markers_image),
+        (
+            "mirrored from LPS to RAS they fit the bone, so the probe points and the patient marker centres are in "
+            "different frames (one file LPS read as RAS); give the untagged one's frame (--ppc-space or "
+            "--markers-patient-space LPS)"
+        ),
     )
     # Mirroring the image markers or the IPC is one test: either puts the two back in one frame.
-    yield (ppc, markers_image @ _LPS), (
-        "with the image marker centres mirrored from LPS to RAS they fit the bone, so the image markers and the IPC "
-        "are in different frames (one file LPS read as RAS, e.g. a model exported without its SPACE tag); give the "
-        "untagged one's frame (--ipc-space LPS or --markers-image-space LPS)"
+    yield (
+        (ppc, markers_image @ _LPS),
+        (
+            "with the image marker centres mirrored from LPS to RAS they fit the bone, so the image markers and the "
+            "IPC are in different frames (one file LPS read as RAS, e.g. a model exported without its SPACE tag); "
+            "give the untagged one's frame (--ipc-space LPS or --markers-image-space LPS)"
+        ),
     )
 
 

@@ -8,7 +8,6 @@ files that cannot state it (``.npy``, text files without the comment) are taken 
 
 import csv
 import json
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.validation import as_points
+from .atomic_files import atomic_path
 from .file_checks import PointFileError, check_input_file
 
 SPACES = ("RAS", "LPS")
@@ -79,14 +79,24 @@ def read_points(path, untagged_space="RAS"):
     return PointSet(points=to_ras(points, space), labels=labels)
 
 
-def write_points(path, points, labels=None):
-    """Write (N, 3) RAS points to ``path``; the file type follows the suffix (LPS for markups, as Slicer)."""
+def write_points(path, points, labels=None, durable=False):
+    """Write (N, 3) RAS points to ``path``; the file type follows the suffix (LPS for markups, as Slicer).
+
+    Written whole or not at all (``io.atomic_files``); ``durable`` also flushes it to the disk.
+    """
     path = Path(path)
     points = as_points(points, "points", min_count=0)
     labels = list(labels) if labels is not None else [f"F-{i + 1}" for i in range(len(points))]
     if len(labels) != len(points):
         raise ValueError(f"labels: {len(labels)} given for {len(points)} points")
     suffix = _suffix(path)
+    if suffix not in POINT_SUFFIXES:
+        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
+    with atomic_path(path, durable=durable) as temporary:
+        _write_points_as(temporary, suffix, points, labels)
+
+
+def _write_points_as(path, suffix, points, labels):
     if suffix in (".mrk.json", ".json"):
         _write_markups_json(path, points, labels)
     elif suffix == ".fcsv":
@@ -97,35 +107,14 @@ def write_points(path, points, labels=None):
         np.savetxt(path, points, fmt="%.17g", delimiter=delimiter, header=header[2:], comments="# ")
     elif suffix == ".npy":
         np.save(path, points)
-    else:
-        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
 
 
 def write_points_atomic(path, points, labels=None):
-    """``write_points``, but a crash at any moment leaves either the previous complete file or the new one.
-
-    The points go to a temporary file beside ``path``, which is flushed to the disk and then renamed over
-    ``path`` (``os.replace`` is atomic on POSIX and Windows); the folder is created when missing. Used for the
-    autosave of every collected point, so a killed process or a power cut never leaves half a file.
-    """
+    """``write_points``, flushed to the disk, its folder created when missing: a crash or a power cut at any moment
+    leaves either the previous complete file or the new one. Used for the autosave of every collected point."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    suffix = _suffix(path)
-    temporary = path.with_name(f".{path.name[: len(path.name) - len(suffix)]}.partial{suffix}")
-    try:
-        write_points(temporary, points, labels)
-        with open(temporary, "rb+") as stream:
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    if hasattr(os, "O_DIRECTORY"):  # make the rename itself durable (POSIX)
-        folder = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-        try:
-            os.fsync(folder)
-        finally:
-            os.close(folder)
+    write_points(path, points, labels, durable=True)
 
 
 def _suffix(path):

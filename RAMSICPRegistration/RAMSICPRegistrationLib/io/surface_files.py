@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic_files import atomic_path
 from .file_checks import PointFileError, check_input_file
 from .point_files import POINT_SUFFIXES, _check_space, _suffix, read_points, to_ras
 from .vtk_arrays import poly_data
@@ -90,15 +91,16 @@ def write_surface(path, vertices, triangles=None):
     elif suffix == ".ply":
         writer.AddComment("SPACE=LPS")
     errors = _collect_errors(writer)
-    writer.SetFileName(str(path))
-    writer.SetInputData(mesh)
-    with _vtk_console_silenced():
-        written = writer.Write()
-    if not written or errors:
-        raise PointFileError(path, f"cannot write ({errors[0].strip() if errors else 'writer failed'})")
-    if suffix == ".obj":
-        # vtkOBJWriter writes no header comment; put the tag where Slicer's reader looks for it.
-        path.write_text("# SPACE=LPS\n" + path.read_text(encoding="utf-8"), encoding="utf-8")
+    with atomic_path(path) as temporary:  # whole or not at all
+        writer.SetFileName(str(temporary))
+        writer.SetInputData(mesh)
+        with _vtk_console_silenced():
+            written = writer.Write()
+        if not written or errors:
+            raise PointFileError(path, f"cannot write ({errors[0].strip() if errors else 'writer failed'})")
+        if suffix == ".obj":
+            # vtkOBJWriter writes no header comment; put the tag where Slicer's reader looks for it.
+            temporary.write_text("# SPACE=LPS\n" + temporary.read_text(encoding="utf-8"), encoding="utf-8")
 
 
 def _reader(suffix):

@@ -31,7 +31,6 @@ runs for as long as the navigation lives (in Slicer the module's logic owns it, 
 shown), connects, writes and reads the robot link and turns its answer into the status message.
 """
 
-import json
 import logging
 import time
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ import numpy as np
 from ..core.guidance import cut_guidance
 from ..core.hold_still import HoldStillDetector
 from ..core.tool_path import plan_document
+from ..io.atomic_files import write_json_atomic
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from . import cutting
 from .navigation import NavigationLogic, matrix_of, points_of
@@ -716,7 +716,7 @@ class NavigationController:
         if path.is_dir():
             raise WorkflowError(f"{path} is a folder; give a file name ending in .json")
         try:
-            path.write_text(json.dumps(document, indent=2), encoding="utf-8")
+            write_json_atomic(path, document)
         except OSError as error:
             raise WorkflowError(f"cannot write the plan to {path} ({error.strerror or error})") from None
         self._say(f"plan written to {path}")

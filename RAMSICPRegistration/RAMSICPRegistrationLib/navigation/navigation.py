@@ -25,6 +25,7 @@ from ..core.surface_index import SurfaceIndex
 from ..core.transforms import apply_transform
 from ..image.ct_pipeline import process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
+from ..image.hounsfield import check_bone_threshold, check_hounsfield_units
 from ..image.volume_io import load_volume
 from ..io.marker_files import flagged_message, labelled_markers, marker_label, pair_markers
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
@@ -117,7 +118,10 @@ class NavigationLogic:
         ``progress(step, done, total)`` is called between the steps; an exception it raises (a cancel) stops the
         run before any node is written. Nodes written by an earlier run are replaced.
         """
+        if not isinstance(threshold_hu, str):
+            check_bone_threshold(threshold_hu)  # a fraction or a soft-tissue threshold, before any work
         volume = load_volume(volume_node)
+        check_hounsfield_units(volume.voxels, threshold_hu)
         image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress)
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         parameters = self.parameters

@@ -28,6 +28,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from ..image.volume_io import CTVolume
+from ..io.atomic_files import write_json_atomic
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from ..io.vtk_arrays import poly_data, triangle_arrays
 from .ct_painting import (
@@ -258,7 +259,6 @@ def write_phantom(directory, volume, truth):
       centres), tagged LPS as Slicer writes models;
     * ``marker_centres.mrk.json``: the true marker centres as Slicer markups (M1 to M4, LPS in the file).
     """
-    import json
     from pathlib import Path
 
     from ..image.volume_io import save_nrrd
@@ -284,7 +284,7 @@ def write_phantom(directory, volume, truth):
     files = {name: {"file": path.name, "frame": FILE_FRAMES[name]} for name, path in paths.items()}
     files["bone_surface"]["extent"] = "cut to the CT's field of view (the box of its voxel centres)"
     document = {**truth.to_dict(), "files": files}
-    paths["truth"].write_text(json.dumps(document, indent=2), encoding="utf-8")
+    write_json_atomic(paths["truth"], document)
     return paths
 
 
