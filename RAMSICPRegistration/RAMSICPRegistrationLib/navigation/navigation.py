@@ -269,7 +269,9 @@ class NavigationLogic:
         parameters.probePoints = ppc_node
         residuals = np.full(len(ppc_all), np.nan)
         residuals[include] = result.residuals_mm
-        notes = [""] * len(ppc_all)
+        notes = self._notes() if len(self._notes()) == len(ppc_all) else [""] * len(ppc_all)
+        for row in rows:  # a point left out by the user keeps its note; the others get this registration's
+            notes[row] = ""
         for position in result.far_points:
             notes[rows[position]] = f"far from the bone after the CR: {result.coarse_distances_mm[position]:.1f} mm"
         include[rows[list(result.left_out)]] = False
