@@ -13,6 +13,7 @@ from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.sweep import MAX_SCALES
 from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
+from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from ._arguments import COUNT, FINITE, POSITIVE_MM
 from ._console import decimals
 from .exit_codes import EXIT_ALARM
@@ -45,6 +46,12 @@ def add_parser(commands):
         "--accept-flagged-markers",
         action="store_true",
         help="use marker centres that ramsicp ipc flagged partial or deformed (refused otherwise)",
+    )
+    reg.add_argument(
+        "--tool",
+        default=DEFAULT_REFERENCE_TOOL,
+        help=f"NDI reference body (default {DEFAULT_REFERENCE_TOOL}): patient marker centres that are its markers "
+        "must lie where its definition puts them (the reference frame is its frame)",
     )
     reg.add_argument(
         "--targets-image",
@@ -124,10 +131,12 @@ def add_parser(commands):
 
 
 def run(arguments):
+    from ..core.coarse_checks import check_reference_frame
     from ..core.registration import register
     from ..core.surface_index import SurfaceIndex
     from ..core.sweep import make_scales
     from ..core.touch_guidance import touch_guidance
+    from ..io.ndi_tools import tool_marker_geometry
     from ..io.point_files import read_points
     from ..io.surface_files import read_surface_points
 
@@ -158,6 +167,13 @@ def run(arguments):
         targets_patient = read_points(arguments.targets_patient, space["targets-patient"]).points
     if arguments.reachable:
         reachable = read_points(arguments.reachable, space["targets-image"]).points
+    check_reference_frame(ppc, f"--ppc {arguments.ppc}")
+    check_reference_frame(
+        markers_patient,
+        f"--markers-patient {arguments.markers_patient}",
+        tool_marker_geometry(arguments.tool),
+        f"NDI tool {arguments.tool}",
+    )
     far_kept = [number - 1 for number in arguments.include_far]
     if any(number > len(ppc) for number in arguments.include_far):
         raise ValueError(f"--include-far {max(arguments.include_far)}: {arguments.ppc} has {len(ppc)} probe points")

@@ -161,3 +161,52 @@ def marker_fit_alarm(fre_mm, marker_count, fle_mm, p_value):
         f"{limit:.2f} mm, p < {p_value:g}): a marker centre is misplaced, or the reference body bent or moved on the "
         "bone since the CT. Check the marker centres before using this result."
     )
+
+
+#: No bone point lies farther than this (mm) from a reference body fixed to that bone; tracker coordinates do (a
+#: Polaris measures from 950 mm on).
+MAX_REFERENCE_DISTANCE_MM = 700.0
+#: Patient marker centres that are a tool's markers must lie where the tool's definition puts them, within this
+#: (mm, and degrees): the reference frame is the tool's own frame.
+TOOL_FRAME_TOLERANCE = (10.0, 10.0)
+
+
+def check_reference_frame(points, name, tool_markers=None, tool_name="the reference body"):
+    """Raise ValueError when (N, 3) points said to be in the reference body's frame cannot be.
+
+    Two tests: no point lies farther than ``MAX_REFERENCE_DISTANCE_MM`` from the reference's origin; and when
+    ``tool_markers`` (K, 3) is given and the points are that tool's markers (they pair by their distances,
+    ``core.marker_geometry``), they lie where the tool's definition puts them (the reference frame is the tool's
+    frame), within ``TOOL_FRAME_TOLERANCE``. The message names tracker coordinates, or LPS read as RAS when the
+    markers are turned 180 degrees about S.
+    """
+    from .marker_geometry import pair_by_geometry
+
+    points = np.asarray(points, dtype=np.float64)
+    farthest = float(np.linalg.norm(points, axis=1).max())
+    if farthest > MAX_REFERENCE_DISTANCE_MM:
+        raise ValueError(
+            f"{name}: a point lies {farthest:.0f} mm from the reference body's origin, farther than any bone it is "
+            f"fixed to ({MAX_REFERENCE_DISTANCE_MM:g} mm): they look to be in tracker coordinates; give them in the "
+            "reference body's frame (ProbeToReference = inv(ReferenceToTracker) ProbeToTracker)"
+        )
+    if tool_markers is None or len(points) < 3:
+        return
+    try:
+        pairing = pair_by_geometry(points, tool_markers, reference_name=tool_name)
+    except ValueError:
+        return  # not this tool's markers: another reference body, nothing to compare with
+    if pairing.ambiguous:
+        return
+    rotation, shift = pairing.transform[:3, :3], float(np.linalg.norm(pairing.transform[:3, 3]))
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+    if shift <= TOOL_FRAME_TOLERANCE[0] and angle <= TOOL_FRAME_TOLERANCE[1]:
+        return
+    if np.abs(rotation - _LPS).max() < 0.05 and shift <= TOOL_FRAME_TOLERANCE[0]:
+        cause = "they look to be LPS read as RAS (or the other way): give the file's frame"
+    else:
+        cause = "they look to be in tracker coordinates: give them in the reference body's frame"
+    raise ValueError(
+        f"{name}: these are the markers of {tool_name}, but they lie {shift:.0f} mm and {angle:.0f} degrees from "
+        f"where its definition puts them in its own frame, the reference frame; {cause}"
+    )

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.coarse_checks import check_reference_frame
 from ..core.pivot import pivot_calibration
 from ..core.registration import DEFAULT_METHOD, register
 from ..core.robot import image_to_robot_base, robot_base_to_tracker
@@ -235,6 +236,13 @@ class NavigationLogic:
         if include.sum() < 3:
             raise ValueError(f"only {include.sum()} probe points are included; include or collect at least 3")
         markers_image, markers_patient, pairing_warnings = _paired_markers(markers_image_node, markers_patient_node)
+        check_reference_frame(ppc_all[include], "probe points")
+        check_reference_frame(
+            markers_patient,
+            "marker centres (patient)",
+            tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
+            "the reference body",
+        )
         if min(len(markers_image), len(markers_patient)) < 3:
             raise ValueError(
                 "the coarse registration needs at least 3 marker centres in both the image and the "
