@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.marker_geometry import PAIRING_TOLERANCE_MM, check_marker_centres, pair_by_geometry
+from ..core.marker_geometry import PAIRING_TOLERANCE_MM, check_marker_centres, pair_by_geometry, unit_hint
 from ..core.paired_point import rigid_procrustes
 from ..core.transforms import apply_transform
 from .point_files import read_points, write_points
@@ -158,6 +158,10 @@ def pair_marker_sets(image, patient, tolerance_mm=PAIRING_TOLERANCE_MM):
             distances are those of metres, centimetres or inches); two pairings fit equally (cannot tell which).
     """
     image_name, patient_name = image.path or "marker centres (image)", patient.path or "marker centres (patient)"
+    if len(image.points) >= 2 and len(patient.points) >= 2:
+        hint = unit_hint(patient.points, image.points)  # the CT is in mm: a unit off shows on the patient side
+        if hint:
+            raise ValueError(f"{patient_name}: the markers do not pair with {image_name}{hint}")
     check_marker_centres(image.points, image_name)
     check_marker_centres(patient.points, patient_name)
     try:
@@ -178,10 +182,17 @@ def pair_marker_sets(image, patient, tolerance_mm=PAIRING_TOLERANCE_MM):
     if geometric.ambiguous:
         raise ValueError(
             f"{patient_name}: the order does not pair with {image_name} and two pairings by the markers' distances "
-            f"fit equally well (FRE {geometric.fre_mm:.2f} and {geometric.runner_up_fre_mm:.2f} mm); give the "
-            "patient markers in the order of the image's (M1, M2, ...)"
+            f"fit within {tolerance_mm:g} mm (FRE {geometric.fre_mm:.2f} and {geometric.runner_up_fre_mm:.2f} mm); "
+            "check the centres and give the patient markers in the order of the image's (M1, M2, ...)"
         )
     image_rows = tuple(int(row) for row in np.flatnonzero(geometric.paired))
+    if len(image_rows) < min(len(image.points), len(patient.points)):
+        unpaired = [_marker_name(image, row) for row in np.flatnonzero(~geometric.paired)]
+        raise ValueError(
+            f"{image_name} and {patient_name}: only {len(image_rows)} of the markers pair within {tolerance_mm:g} mm "
+            f"by their distances; {', '.join(unpaired)} fits none of the patient's (a misplaced centre, or a "
+            "marker moved since the CT): correct it, or delete it from the file (three markers are enough)"
+        )
     patient_rows = tuple(int(geometric.indices[row]) for row in image_rows)
     names = [_marker_name(image, row) for row in image_rows]
     pairs = ", ".join(f"{name} = row {patient_row + 1}" for name, patient_row in zip(names, patient_rows))
