@@ -200,7 +200,10 @@ def unit_hint(points, reference):
     ratio = measured / designed
     for scale, words in _UNIT_SCALES:
         if abs(np.log(ratio / scale)) < np.log(1.25):
-            return f"; the distances are {ratio:.3g} times the reference layout's: the centres look to be {words}, give them in mm"
+            return (
+                f"; the distances are {ratio:.3g} times the reference layout's: the centres look to be {words}, give "
+                "them in mm"
+            )
     return ""
 
 
