@@ -394,8 +394,9 @@ def target_error_mm(session, reference_to_image):
     )
 
 
-def run_case(seed, folder, mistakes=None):
-    """One case: (outcome, the mistakes applied, detail). ``mistakes`` names them; else 1 or 2 drawn at random."""
+def run_case(seed, folder, mistakes=None, options=()):
+    """One case: (outcome, the mistakes applied, detail). ``mistakes`` names them; else 1 or 2 drawn at random.
+    ``options`` are added to register's command line (the fix a message asked for)."""
     rng = np.random.default_rng(seed)
     session = correct_session(rng)
     if mistakes is None:
@@ -403,6 +404,7 @@ def run_case(seed, folder, mistakes=None):
         mistakes = list(rng.choice(names, size=int(rng.integers(1, 3)), replace=False))
     for name in mistakes:
         MISTAKES[name](session, rng)
+    session.options += list(options)
     for arguments in write_session(session, folder, rng):
         out, err = io.StringIO(), io.StringIO()
         try:

@@ -237,8 +237,11 @@ def _read_text(path):
             space = match.group(1).upper() if match else space
             continue
         separator = next((mark for mark in (";", "\t") if mark in stripped), "," if "," in stripped else None)
-        fields = [value.strip() for value in (stripped.split(separator) if separator else stripped.split())]
-        if separator in (";", "\t"):
+        words = stripped.split()
+        if separator == "," and len(words) > 1 and all(_DECIMAL_COMMA.fullmatch(w) or _is_number(w) for w in words):
+            separator = " "  # "1,5 -2,25 3": columns by spaces, decimal commas
+        fields = [value.strip() for value in (words if separator in (None, " ") else stripped.split(separator))]
+        if separator in (";", "\t", " "):
             fields = [value.replace(",", ".") if _DECIMAL_COMMA.fullmatch(value) else value for value in fields]
         if columns is None and not points and not any(_is_number(value) for value in fields if value):
             columns, stated = _header_columns(path, line_number, fields)
