@@ -138,3 +138,105 @@ def test_ctrl_c_while_register_writes_its_json_is_one_line_exit_130_and_no_file(
     assert main(arguments) == 130
     assert capsys.readouterr().err == "ramsicp register: stopped by Ctrl-C\n"
     assert not (tmp_path / "result.json").exists() and not list(tmp_path.glob(f"*{PARTIAL}*"))
+
+
+# -- numbers that cannot be right, refused before any work ------------------------------------------------------
+@pytest.mark.parametrize(
+    "threshold, words",
+    [
+        ("0.2", "threshold 0.2 HU looks like a fraction"),
+        ("50", "threshold 50 HU is below bone: soft tissue"),
+        ("-100", "is below bone"),
+        ("3000", "threshold 3000 HU is above most cortical bone"),
+    ],
+)
+def test_an_ipc_threshold_outside_bone_is_refused_naming_why(tmp_path, capsys, threshold, words):
+    """Refused by the parser, before the CT is even opened (it does not exist here)."""
+    arguments = ["ipc", str(tmp_path / "ct.nrrd"), "--threshold", threshold, "--out", str(tmp_path / "ipc.vtp")]
+    assert main(arguments) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and words in error and not list(tmp_path.iterdir())
+
+
+def test_a_ct_without_air_is_not_taken_for_hounsfield_units():
+    from RAMSICPRegistrationLib.image.hounsfield import check_hounsfield_units
+
+    raw = np.full((4, 4, 4), 1024.0)  # water as stored without the rescale intercept (-1024)
+    raw[0, 0, 0], raw[1, 1, 1] = 0.0, 2200.0  # air, bone
+    with pytest.raises(ValueError, match="the lowest is 0 .* Stored without its rescale slope and intercept"):
+        check_hounsfield_units(raw, 200.0)
+    check_hounsfield_units(raw - 1024.0, 200.0)  # the same CT in HU: air at -1024
+    check_hounsfield_units(raw, "auto")  # Otsu decides on the values it sees
+    check_hounsfield_units(np.zeros((4, 4, 4)), 200.0)  # nothing above the threshold: segmentation says so
+
+
+@pytest.mark.parametrize(
+    "tip, words",
+    [
+        (["20.38", "-1.23", "0.12"], "it looks to be in centimetres"),
+        (["0.204", "-0.012", "0.001"], "it looks to be in metres"),
+        (["2", "0", "0"], "check the probe's calibration"),
+        (["900", "0", "0"], "check the probe's calibration"),
+    ],
+)
+def test_a_tip_no_probe_has_is_refused_before_the_recording_is_read(tmp_path, capsys, tip, words):
+    arguments = [
+        "collect",
+        "--recording",
+        str(tmp_path / "none.igs.mha"),
+        "--tip",
+        *tip,
+        "--out",
+        str(tmp_path / "p.csv"),
+    ]
+    assert main(arguments) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "where no probe's tip lies (30 to 500 mm" in error and words in error
+
+
+def test_a_marker_fit_beyond_the_given_marker_error_is_an_alarm(tibia_patient):
+    """Markers placed with 1 mm error (FRE about 0.7 mm) registered with --fle 0.1: the FRE is beyond what 0.1 mm
+    explains (chi-square(6) at 1e-4: 0.14 mm for 4 markers), an alarm; given 1 mm, none."""
+    from RAMSICPRegistrationLib.core.registration import register
+
+    trial = tibia_patient.simulate_trial(np.random.default_rng(5), marker_fle_mm=1.0)
+    arguments = (tibia_patient.ipc, trial.ppc, trial.markers_image, trial.markers_patient)
+    tight = register(*arguments, method="cr", fle_mm=0.1)
+    assert tight.fre_mm > 0.3 and any(alarm.startswith("The marker fit (FRE") for alarm in tight.alarms)
+    assert not any("marker fit (FRE" in alarm for alarm in register(*arguments, method="cr", fle_mm=1.0).alarms)
+
+
+def test_an_image_marker_off_its_sphere_is_refused_naming_it(tmp_path):
+    """One image centre 6 mm off (clicked on the sphere's rim): no pairing of all four within 2 mm; the message names
+    the marker that fits none, and deleting it lets the other three register."""
+    from RAMSICPRegistrationLib.io.marker_files import MarkerSet, pair_marker_sets
+    from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
+
+    tool = tool_marker_geometry()
+    image = tool + np.array([100.0, 50.0, 20.0])
+    image[2] += (0.0, 6.0, 0.0)  # in the plane of the markers (out of it, a tilt absorbs much of it)
+    image_set = MarkerSet(image, (1, 2, 3, 4), ("ok",) * 4, "image.mrk.json")
+    patient_set = MarkerSet(tool, (None,) * 4, (None,) * 4, "patient.csv")
+    with pytest.raises(ValueError, match="only 3 of the markers pair within 2 mm .* image M3 fits none"):
+        pair_marker_sets(image_set, patient_set)
+    three = MarkerSet(image[[0, 1, 3]], (1, 2, 4), ("ok",) * 3, "image.mrk.json")
+    pairing = pair_marker_sets(three, patient_set)
+    np.testing.assert_allclose(pairing.patient, tool[[0, 1, 3]])
+
+
+def test_a_report_folder_interrupted_keeps_its_old_files_and_gets_no_new_one(tmp_path):
+    from RAMSICPRegistrationLib.io.atomic_files import atomic_folder
+
+    report = tmp_path / "report"
+    report.mkdir()
+    (report / "report.md").write_text("the previous report")
+    with pytest.raises(KeyboardInterrupt), atomic_folder(report) as folder:
+        (folder / "results.json").write_text("{}")
+        raise KeyboardInterrupt  # Ctrl-C while the figures are drawn
+    assert sorted(item.name for item in tmp_path.iterdir()) == ["report"]
+    assert [item.name for item in report.iterdir()] == ["report.md"]
+    with atomic_folder(report) as folder:
+        (folder / "results.json").write_text("{}")
+        (folder / "report.md").write_text("the new report")
+    assert sorted(item.name for item in report.iterdir()) == ["report.md", "results.json"]
+    assert (report / "report.md").read_text() == "the new report"

@@ -62,3 +62,23 @@ def write_json_atomic(path, document):
     import json
 
     write_text_atomic(path, json.dumps(document, indent=2))
+
+
+@contextmanager
+def atomic_folder(directory):
+    """Yield a temporary folder beside ``directory`` to write a set of files in (a report, a phantom); on success
+    each file is moved into ``directory`` (created when missing) by ``os.replace``, on any exception the temporary
+    folder is removed and ``directory`` is left as it was: a report is never left with half its files."""
+    import shutil
+
+    directory = Path(directory)
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    temporary = directory.with_name(f".{directory.name}{PARTIAL}-{os.getpid()}")
+    temporary.mkdir()
+    try:
+        yield temporary
+        directory.mkdir(exist_ok=True)
+        for item in sorted(temporary.iterdir()):
+            os.replace(item, directory / item.name)
+    finally:
+        shutil.rmtree(temporary, ignore_errors=True)
