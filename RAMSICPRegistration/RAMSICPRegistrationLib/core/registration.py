@@ -348,6 +348,7 @@ def register(
         residuals,
         index,
         probe_noise_mm,
+        np.delete(np.arange(len(ppc_all)), left_out),
     )
     fit_alarm = marker_fit_alarm(coarse.fre_mm, len(coarse.residuals_mm), fle_mm, ALARM_P)
     alarms = coarse_alarms + alarms + ((fit_alarm,) if fit_alarm else ()) + tuple(marker_warnings)
@@ -397,7 +398,9 @@ def register(
     )
 
 
-def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_error, residuals, index, noise_mm):
+def _alarms(
+    method, coarse, fine, ppc, targets_patient, markers_image, marker_error, residuals, index, noise_mm, numbers
+):
     """The checks a result must pass to be used: (the fine step's largest move from the CR in mm or None, alarms).
 
     The fine step (``fine``, None for the CR alone) must not move a probe point or target from where the CR put it by
@@ -406,7 +409,8 @@ def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_er
     noise and the IPC's spacing explain (F3 of ``core.fused``) of the IPC; after the CR alone, within that plus the
     CR's predicted error (the same ratio times its median over the probe points); never less than
     ``ALARM_FLOOR_MM``.
-    ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE).
+    ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE); ``numbers`` (0-based)
+    are the probe points' rows in the input (some may have been left out).
     """
     fle, fle_given = marker_error
     points = ppc if targets_patient is None else np.vstack((ppc, targets_patient))
@@ -419,7 +423,7 @@ def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_er
         limits = np.maximum(ratio * expected, ALARM_FLOOR_MM)
         largest, worst = float(moves.max()), int(np.argmax(moves / limits))
         if moves[worst] > limits[worst]:
-            which = f"probe point {worst + 1}" if worst < len(ppc) else f"target {worst - len(ppc) + 1}"
+            which = f"probe point {numbers[worst] + 1}" if worst < len(ppc) else f"target {worst - len(ppc) + 1}"
             alarms.append(
                 f"{method} moved {which} {moves[worst]:.1f} mm from where the CR put it, more than the marker error "
                 f"can explain (the CR's predicted error there is {expected[worst]:.2f} mm RMS for FLE {fle:.2f} mm; "
