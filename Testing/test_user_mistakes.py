@@ -63,6 +63,18 @@ NAMED_CAUSE = {
 }
 
 
+def test_both_image_files_untagged_need_their_frame_given(tmp_path):
+    """The IPC and the image markers both LPS without a tag: they agree with each other (a mirror about S is a
+    rotation), so no check could see it; neither stating its frame, the frame must be given."""
+    mistakes = ["ipc_lps_without_tag", "image_markers_lps_untagged"]
+    outcome, _, detail = user_mistakes.run_case(2, tmp_path, mistakes)
+    assert outcome == "refused" and "states its coordinate frame" in detail and "--untagged-space RAS or LPS" in detail
+    outcome, _, detail = user_mistakes.run_case(
+        2, tmp_path, mistakes, ["--ipc-space", "LPS", "--markers-image-space", "LPS"]
+    )
+    assert outcome == "correct", detail
+
+
 @pytest.mark.parametrize("mistake", list(user_mistakes.MISTAKES))
 def test_each_mistake_alone_is_refused_alarmed_or_right(tmp_path, mistake):
     outcome, _, detail = user_mistakes.run_case(7, tmp_path, [mistake])

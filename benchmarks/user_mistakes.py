@@ -301,7 +301,7 @@ def write_recording(path, points, rng):
 
     reference_to_tracker = _tracker_pose(rng)
     frames, time_s = [], 0.0
-    for point in points:
+    for point in points[np.isfinite(points).all(axis=1)]:  # a tracker reports no NaN: it leaves the frame out
         rotation = rotation_about_axis(rng.normal(size=3), np.radians(rng.uniform(10.0, 40.0)))
         for _ in range(20):  # held still
             tip = point + rng.normal(scale=0.03, size=3)

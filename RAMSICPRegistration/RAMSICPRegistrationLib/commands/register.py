@@ -102,8 +102,8 @@ def add_parser(commands):
         "--untagged-space",
         type=str.upper,
         choices=("RAS", "LPS"),
-        default="RAS",
-        help="frame of files that do not state one (default RAS); the options below set it for one input",
+        help="frame of files that do not state one (default RAS); the options below set it for one input. When "
+        "neither the IPC nor the image markers state a frame, give it (nothing else can tell a mirror)",
     )
     for option in SPACE_OPTIONS:
         reg.add_argument(
@@ -141,7 +141,7 @@ def run(arguments):
     from ..io.surface_files import read_surface_points
 
     space = {
-        option: getattr(arguments, option.replace("-", "_") + "_space") or arguments.untagged_space
+        option: getattr(arguments, option.replace("-", "_") + "_space") or arguments.untagged_space or "RAS"
         for option in SPACE_OPTIONS
     }
     if arguments.targets_patient is not None and arguments.targets_image is None:
@@ -157,9 +157,9 @@ def run(arguments):
     inputs += (arguments.targets_image, arguments.targets_patient, arguments.reachable)
     check_output_file(arguments.json, "--json", (".json",), inputs)
     clock = time.perf_counter()
-    ipc = read_surface_points(arguments.ipc, space["ipc"])
+    ipc, ipc_stated = read_surface_points(arguments.ipc, space["ipc"], with_space=True)
     ppc = read_points(arguments.ppc, space["ppc"]).points
-    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
+    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space, ipc_stated)
     targets_image = targets_patient = reachable = None
     if arguments.targets_image:
         targets_image = read_points(arguments.targets_image, space["targets-image"]).points
@@ -218,7 +218,7 @@ def run(arguments):
     return 0
 
 
-def _read_markers_pair(arguments, space):
+def _read_markers_pair(arguments, space, ipc_stated=None):
     """Image and patient marker centres, paired by marker number or row and checked by their distances
     (``pair_marker_sets``: another order is re-paired and said); flagged ones refused unless accepted.
 
@@ -227,6 +227,7 @@ def _read_markers_pair(arguments, space):
     from ..io.marker_files import flagged_message, pair_marker_sets, read_markers
 
     image = read_markers(arguments.markers_image, space["markers-image"])
+    _check_image_frame_given(arguments, ipc_stated, image.stated_space)
     patient = read_markers(arguments.markers_patient, space["markers-patient"])
     pairing = pair_marker_sets(image, patient)
     markers_image, markers_patient = pairing.image, pairing.patient
@@ -248,6 +249,18 @@ def _read_markers_pair(arguments, space):
             "registration may be off by that sphere's error"
         ],
     )
+
+
+def _check_image_frame_given(arguments, ipc_stated, markers_stated):
+    """Refuse when neither image-side file states its frame and none was given: both LPS read as RAS is a mirror
+    about S, which is a rotation, so the two agree, every check passes and the result is in the wrong frame."""
+    given = arguments.untagged_space or arguments.ipc_space or arguments.markers_image_space
+    if ipc_stated is None and markers_stated is None and not given:
+        raise ValueError(
+            f"neither {arguments.ipc} nor {arguments.markers_image} states its coordinate frame, and if both are LPS "
+            "read as RAS no check can see it (the mirror turns both alike): give their frame, --untagged-space RAS "
+            "or LPS (or --ipc-space and --markers-image-space); ramsicp ipc and Slicer write both tagged"
+        )
 
 
 def _default_method_fits(arguments):

@@ -9,7 +9,7 @@ by hand, the tool geometry) have neither: their points pair row by row and count
 """
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,6 +34,7 @@ class MarkerSet:
     numbers: tuple
     statuses: tuple
     path: str = ""
+    stated_space: str = None  # the frame the file stated, or None
 
     @property
     def numbered(self):
@@ -77,7 +78,8 @@ def check_markers_path(path):
 def read_markers(path, untagged_space="RAS"):
     """Read a markers file (any point file); numbers and statuses come from ``M<n> <status>`` labels."""
     point_set = read_points(path, untagged_space)
-    return labelled_markers(point_set.points, point_set.labels, str(path))
+    markers = labelled_markers(point_set.points, point_set.labels, str(path))
+    return replace(markers, stated_space=point_set.stated_space)
 
 
 def labelled_markers(points, labels, source=""):

@@ -29,10 +29,12 @@ POINT_SUFFIXES = (".mrk.json", ".json", ".fcsv", ".csv", ".txt", ".npy")
 
 @dataclass(frozen=True)
 class PointSet:
-    """Points read from a file: ``points`` (N, 3) RAS mm, one label per point (may be empty strings)."""
+    """Points read from a file: ``points`` (N, 3) RAS mm, one label per point (may be empty strings), and the frame
+    the file stated (``stated_space``: 'RAS' or 'LPS', None when it stated none and ``untagged_space`` was used)."""
 
     points: np.ndarray
     labels: tuple = field(default=())
+    stated_space: str = None
 
     def __len__(self):
         return len(self.points)
@@ -69,6 +71,7 @@ def read_points(path, untagged_space="RAS"):
         raise
     except (OSError, UnicodeDecodeError) as error:
         raise PointFileError(path, f"cannot read ({error})") from None
+    stated = space
     if space is None:
         space = untagged_space
     try:
@@ -76,7 +79,7 @@ def read_points(path, untagged_space="RAS"):
     except ValueError as error:
         raise PointFileError(path, str(error)) from None
     labels = tuple(labels) if labels else ("",) * len(points)
-    return PointSet(points=to_ras(points, space), labels=labels)
+    return PointSet(points=to_ras(points, space), labels=labels, stated_space=stated)
 
 
 def write_points(path, points, labels=None, durable=False):
