@@ -240,3 +240,26 @@ def test_a_report_folder_interrupted_keeps_its_old_files_and_gets_no_new_one(tmp
         (folder / "report.md").write_text("the new report")
     assert sorted(item.name for item in report.iterdir()) == ["report.md", "results.json"]
     assert (report / "report.md").read_text() == "the new report"
+
+
+@pytest.mark.parametrize(
+    "point, words",
+    [
+        ((-1.0, -1.0, 1.0), "it looks to be LPS: give it in RAS"),
+        ((1e-3, 1e-3, 1e-3), "it looks to be in metres"),
+        ((0.1, 0.1, 0.1), "it looks to be in centimetres"),
+    ],
+)
+def test_a_cut_plane_point_off_the_bone_is_refused_naming_the_frame_or_unit(
+    tmp_path, capsys, tibia_patient, point, words
+):
+    """The plan's point is the cut's middle, on the bone: given in LPS, metres or centimetres it lies hundreds of mm
+    off (a plane facing S would still cross the bone and the plan would go ahead)."""
+    middle = tibia_patient.targets_image.mean(axis=0)
+    write_surface(tmp_path / "bone.vtp", tibia_patient.ipc[::10])
+    given = [f"{value:g}" for value in middle * np.array(point)]
+    arguments = ["plan", "--ipc", str(tmp_path / "bone.vtp"), "--plane", *given, "0", "0", "1"]
+    assert main(arguments + ["--out", str(tmp_path / "plan.json")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "is the cut's middle but lies" in error and words in error
+    assert not (tmp_path / "plan.json").exists()
