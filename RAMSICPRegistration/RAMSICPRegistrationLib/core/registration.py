@@ -143,6 +143,7 @@ class RegistrationResult:
         if self.uncertainty is None or self.targets_image is None:
             return None
         return self.uncertainty.errors_at(self.targets_image).quantile_mm(0.95)
+
     far_points: tuple = ()
     left_out: tuple = ()
     coarse_distances_mm: np.ndarray = None
