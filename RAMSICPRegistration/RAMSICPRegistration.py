@@ -52,6 +52,7 @@ BUTTON_ACTIONS = {
     "collectMarkerButton": "collect_marker",
     "collectButton": "collect_point",
     "registerButton": "register",
+    "acceptRegistrationButton": "accept_registration",
     "robotButton": "robot_calibration",
     "planCutButton": "plan_cut",
     "sendPathButton": "send_tool_path",
@@ -64,6 +65,7 @@ ENABLED_BY = {
     "collectMarkerButton": "collect_marker",
     "collectButton": "collect_point",
     "registerButton": "register",
+    "acceptRegistrationButton": "accept_registration",
     "robotButton": "robot_calibration",
     "planCutButton": "plan_cut",
     "savePlanButton": "save_plan",
@@ -78,6 +80,7 @@ ROBOT_SERVICE_INTERVAL_MS = 50
 #: macOS and switches the input method on Linux and Windows); checked by Testing/test_module_files.py.
 COLLECT_SHORTCUT = "Ctrl+Shift+C"
 ON_PLAN_STYLE = "color: #ffffff; background-color: #2e7d32; font-size: 15px; font-weight: bold; padding: 4px"
+ALARM_STYLE = "color: #ffffff; background-color: #c62828; font-weight: bold; padding: 4px"
 OFF_PLAN_STYLE = "color: #ffffff; background-color: #c62828; font-size: 15px; font-weight: bold; padding: 4px"
 
 
@@ -348,6 +351,11 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
             "" if guidance is None else (ON_PLAN_STYLE if guidance.on_plan else OFF_PLAN_STYLE)
         )
         self.ui.robotStatusLabel.text = status.robot
+        self.ui.alarmLabel.text = "\n".join(
+            _("ALARM, not used for navigation until accepted: {alarm}").format(alarm=alarm) for alarm in status.alarms
+        )
+        self.ui.alarmLabel.styleSheet = ALARM_STYLE if status.alarms else ""
+        self.ui.acceptRegistrationButton.visible = bool(status.alarms)
         table = self._parameterNode.residualTable
         if self.ui.residualTableView.mrmlTableNode() is not table:
             self.ui.residualTableView.setMRMLTableNode(table)

@@ -264,6 +264,9 @@ def test_ctrl_c_is_one_line_and_exit_130_with_nothing_written(tmp_path, command)
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # Ctrl-C's default action, whoever started the tests: a shell starts background jobs with SIGINT ignored,
+        # which a child inherits (Python then never raises KeyboardInterrupt)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     time.sleep(4.0)  # well into the work: the imports take about 1 s
     process.send_signal(signal.SIGINT)

@@ -6,7 +6,6 @@ offset built by hand, points on a straight path at a set spacing, distances comp
 """
 
 import json
-import time
 
 import numpy as np
 import pytest
@@ -39,10 +38,25 @@ def scene():
     return headless_scene()
 
 
+class ManualClock:
+    """The controller's clock, advanced only by the test: tracking ages do not depend on how loaded the machine is
+    (a registration that took 1.02 s on a loaded machine made the probe stale behind a real clock)."""
+
+    def __init__(self):
+        self.now_s = 1000.0
+
+    def __call__(self):
+        return self.now_s
+
+    def advance(self, seconds):
+        self.now_s += seconds
+
+
 @pytest.fixture
 def tracked(scene, tmp_path):
-    """A controller with a tracked probe selected, a calibrated tip and autosave into ``tmp_path``."""
-    controller = NavigationController(scene, autosave_directory=tmp_path)
+    """A controller with a tracked probe selected, a calibrated tip and autosave into ``tmp_path``; its clock is a
+    ``ManualClock`` (``controller.clock``) that only the test advances."""
+    controller = NavigationController(scene, autosave_directory=tmp_path, clock=ManualClock())
     probe = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeToReference")
     tip = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ProbeTipToProbe")
     set_matrix(tip, make_transform(translation=TIP))
@@ -140,7 +154,7 @@ def test_stale_after_a_silent_second_then_valid_again_and_collection_needs_no_ot
     set_matrix(probe, pose_with_tip_at([1.0, 2.0, 3.0]))
     assert controller.tool_state("probeToReference").state == "valid"
     assert controller.run("collect_point") == 0
-    time.sleep(1.2)  # the tracker stops sending
+    controller.clock.advance(1.2)  # the tracker stops sending
     state = controller.tool_state("probeToReference")
     assert state.state == "stale" and state.age_s >= 1.2
     assert controller.run("collect_point") is None and "last pose: 1." in controller.status().message
@@ -158,7 +172,7 @@ def test_stale_after_a_silent_second_then_valid_again_and_collection_needs_no_ot
 def test_a_parent_transform_change_is_not_a_pose(tracked, scene):
     controller, probe = tracked
     set_matrix(probe, np.eye(4))
-    time.sleep(1.2)
+    controller.clock.advance(1.2)
     parent = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToImage")
     probe.SetAndObserveTransformNodeID(parent.GetID())
     set_matrix(parent, make_transform(translation=(5.0, 0.0, 0.0)))  # TransformModifiedEvent on the probe too
@@ -180,7 +194,7 @@ def test_tip_to_surface_readout_follows_matrix_updates(tracked, scene, tibia_pat
     set_matrix(probe, pose_with_tip_at(lifted))
     expected = np.linalg.norm(tibia_patient.ipc - apply_transform(tibia_patient.reference_to_image, lifted), axis=1)
     assert controller.status().tip_to_surface_mm == pytest.approx(expected.min(), abs=1e-9)
-    time.sleep(1.2)
+    controller.clock.advance(1.2)
     assert controller.status().tip_to_surface_mm is None  # no readout from a stale probe
 
 
@@ -463,3 +477,94 @@ def test_flagged_markers_are_refused_and_numbered_markers_pair_by_number(tracked
     result = controller.run("register")
     np.testing.assert_allclose(result.reference_to_image, tibia_patient.reference_to_image, atol=1e-6)
     assert len(result.marker_residuals_mm) == 3
+
+
+def _collect(controller, probe, points):
+    for point in points:
+        set_matrix(probe, pose_with_tip_at(point))
+        controller.run("collect_point")
+
+
+def _exact_inputs(scene, controller, tibia_patient, ipc_shift=(0.0, 0.0, 0.0), marker_order=None):
+    """An exact trial's markers and IPC (shifted in the image by ``ipc_shift`` mm) selected; returns the trial."""
+    parameters = controller.parameters
+    trial = tibia_patient.simulate_trial(np.random.default_rng(1), marker_fle_mm=0.0, probe_noise_mm=0.0)
+    parameters.ipcModel = mrml_nodes.model_node(scene, tibia_patient.ipc + np.asarray(ipc_shift))
+    parameters.markersImage = mrml_nodes.fiducial_node(scene, trial.markers_image)
+    order = np.arange(len(trial.markers_patient)) if marker_order is None else marker_order
+    parameters.markersPatient = mrml_nodes.fiducial_node(scene, trial.markers_patient[order])
+    return trial
+
+
+def test_a_registration_with_an_alarm_is_not_navigated_until_accepted(tracked, scene, tibia_patient):
+    """Issue 23: an IPC 2 mm off where the exact markers put the bone (under the 3 mm far-touch floor): CR-ICP
+    slides 2 mm, beyond the 1 mm the markers allow, an alarm. The result is shown, not applied: no ReferenceToImage,
+    no tip distance, until the user accepts it; then it is navigated with, and the alarm is no longer shown."""
+    controller, probe = tracked
+    parameters = controller.parameters
+    trial = _exact_inputs(scene, controller, tibia_patient, ipc_shift=(2.0, 0.0, 0.0))
+    _collect(controller, probe, trial.ppc)
+    parameters.method = "cr-icp"
+    assert controller.availability()["accept_registration"] == "no registration is waiting for acceptance"
+    result = controller.run("register")
+    assert result.alarms and "cr-icp moved probe point" in result.alarms[0]
+    status = controller.status()
+    assert status.alarms == result.alarms and not set(status.warnings) & set(result.alarms)
+    assert status.message.startswith("ALARM, registration not applied") and status.message_is_error
+    assert parameters.referenceToImage is None and probe.GetParentTransformNode() is None
+    assert status.tip_to_surface_mm is None
+    assert controller.run("accept_registration") is result
+    np.testing.assert_allclose(matrix_of(parameters.referenceToImage), result.reference_to_image)
+    assert probe.GetParentTransformNode() is parameters.referenceToImage
+    status = controller.status()
+    assert status.alarms == () and status.message.startswith("registration accepted despite 1 alarm(s)")
+    assert status.tip_to_surface_mm is not None
+    assert controller.availability()["accept_registration"] is not None
+
+
+def _lifted_off(patient, point, distance_mm):
+    """``point`` (reference mm) moved ``distance_mm`` along the axis direction that takes it farthest from the IPC."""
+    image_to_reference = invert_transform(patient.reference_to_image)
+    ipc = apply_transform(image_to_reference, patient.ipc)
+    moves = np.vstack((np.eye(3), -np.eye(3))) * distance_mm
+    gaps = [np.linalg.norm(ipc - (point + move), axis=1).min() for move in moves]
+    assert max(gaps) > 6.0, "the test needs a point that can be lifted off the bone"
+    return point + moves[int(np.argmax(gaps))]
+
+
+def test_touches_far_from_the_bone_are_left_out_until_included_by_hand(tracked, scene, tibia_patient):
+    """Two touches 10 mm off the bone (in the air between touches): flagged in the residual table's note, their
+    'include' turned off, the CR exact on the other 40; ticked again by hand, the next registration uses one."""
+    controller, probe = tracked
+    parameters = controller.parameters
+    trial = _exact_inputs(scene, controller, tibia_patient)
+    lifted = np.array([_lifted_off(tibia_patient, point, 10.0) for point in trial.ppc[:2]])
+    _collect(controller, probe, np.vstack((trial.ppc, lifted)))
+    parameters.method = "cr"
+    result = controller.run("register")
+    assert result.left_out == result.far_points == (40, 41) and not result.alarms
+    np.testing.assert_allclose(result.reference_to_image, tibia_patient.reference_to_image, atol=1e-6)
+    status = controller.status()
+    assert status.far_points == (41, 42) and any("left out of the fit: 41 (" in w for w in status.warnings)
+    table = parameters.residualTable.GetTable()
+    include, note = table.GetColumnByName("include"), table.GetColumnByName("note")
+    assert [include.GetValue(row) for row in (39, 40, 41)] == [1, 0, 0]
+    assert note.GetValue(40).startswith("far from the bone after the CR: ") and note.GetValue(39) == ""
+    controller.run("set_included", 40, True)  # the surgeon says point 41 was on the bone after all
+    again = controller.run("register")  # point 42 stays out (its include is off): point 41 is far, and used
+    assert again.far_points == (40,) and again.left_out == () and len(again.residuals_mm) == 41
+    table = parameters.residualTable.GetTable()
+    assert [table.GetColumnByName("include").GetValue(row) for row in (40, 41)] == [1, 0]
+    assert all(table.GetColumnByName("note").GetValue(row).startswith("far") for row in (40, 41))
+    assert controller.status().far_points == (41, 42)
+
+
+def test_patient_markers_in_another_order_are_paired_by_their_distances(tracked, scene, tibia_patient):
+    """The patient's marker centres listed in another order: paired by the tool's distances, said, and exact."""
+    controller, probe = tracked
+    trial = _exact_inputs(scene, controller, tibia_patient, marker_order=[2, 0, 3, 1])
+    _collect(controller, probe, trial.ppc)
+    controller.parameters.method = "cr"
+    result = controller.run("register")
+    np.testing.assert_allclose(result.reference_to_image, tibia_patient.reference_to_image, atol=1e-6)
+    assert any("paired by the markers' distances instead" in w for w in controller.status().warnings)

@@ -136,6 +136,32 @@ def test_surface_noise_prior_and_its_reestimate(tibia_patient, tibia_index):
     assert any("worse than the probe noise allows" in warning for warning in result.warnings)
 
 
+def test_surface_noise_reestimate_takes_out_the_poses_six_degrees_of_freedom():
+    """Issue 23 (a mutant that survived): F3's re-estimate divides the squared residuals by N - trace(C H_s), the
+    points' share of the 6 pose parameters taken out, not by N. With the markers switched off the 12 probe points fix
+    all 6, so sum r^2 / (N - 6) is unbiased for the noise put along the normals (0.5 mm) while sum r^2 / N is half
+    of it. Mean of the squared estimate over 150 fits: 0.25 mm^2 within 15 % (a 6-dof chi-square spreads 5 % over
+    150 fits; the mutant gives 0.12)."""
+    semi_axes = np.array([40.0, 25.0, 15.0])
+    index = SurfaceIndex(ellipsoid_points(60000, semi_axes=tuple(semi_axes)))
+    rng = np.random.default_rng(23)
+    no_markers = FusedWeights(np.inf, 0.01, "given", "prior", 0.25, 0.2)  # a prior far below the true noise
+    markers = TOOL + np.array([0.0, 60.0, -40.0])
+    options = {"loss": "least-squares", "variance": "surface", "restarts": False}
+    squared, freedoms = [], []
+    for trial in range(150):
+        on_surface = ellipsoid_points(12, semi_axes=tuple(semi_axes), seed=1000 + trial)
+        normals = on_surface / semi_axes**2
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        noisy = on_surface + rng.normal(scale=0.5, size=(12, 1)) * normals
+        fit = fused_fit(index, noisy, markers, markers, np.eye(4), no_markers, **options)
+        assert fit.weights.sigma_source == "residuals"
+        squared.append(fit.weights.surface_sigma_mm**2)
+        freedoms.append(fit.surface_dof)
+    assert np.mean(freedoms) == pytest.approx(6.0, abs=0.01)  # the surface alone fixes the whole pose
+    assert np.mean(squared) == pytest.approx(0.25, rel=0.15), np.mean(squared)
+
+
 def test_result_json_carries_weights_and_prediction(tibia_patient, tibia_index):
     trial = tibia_patient.simulate_trial(np.random.default_rng(9), marker_fle_mm=1.0)
     result = register(

@@ -264,6 +264,18 @@ def test_guidance_on_the_plan_1_mm_off_and_5_degrees_tilted(cut):
     assert burr.angle_deg == pytest.approx(0.0, abs=1e-6)  # a burr spinning about its axis is still in the plane
 
 
+@pytest.mark.parametrize("tilt_deg, on_plan", [(3.0, False), (1.5, True), (-2.5, False), (30.0, False)])
+def test_a_tilted_burr_shows_its_angle_in_degrees_and_leaves_the_plan_beyond_2_degrees(cut, tilt_deg, on_plan):
+    """Issue 23 (a mutant that survived): the burr's angle to the plan in radians never reached the 2-degree
+    tolerance, so a tilted burr always showed 'on plan'. The burr's axis (the direction it advances) tilted out of the
+    plane by ``tilt_deg`` about the plane's across axis: its angle is |tilt| degrees; on plan within 2 degrees."""
+    pose = tool_at(cut, 0.0, -5.0, rotation=turn(cut.plane.across, np.radians(tilt_deg)))
+    burr = cut_guidance(cut, pose, tool="burr", width_mm=4.0)
+    assert burr.angle_deg == pytest.approx(abs(tilt_deg), abs=1e-9)
+    assert burr.on_plan is on_plan and burr.distance_mm == pytest.approx(0.0, abs=1e-12)
+    assert f"angle {abs(tilt_deg):.1f} deg" in burr.text
+
+
 def test_guidance_depth_to_the_far_cortex_and_off_the_bone(cut):
     past = cut_guidance(cut, tool_at(cut, 0.0, 12.0), width_mm=4.0)
     assert past.depth_to_far_cortex_mm == pytest.approx(np.sqrt(R**2 - 2.0**2) - 12.0, abs=2e-4)

@@ -88,11 +88,11 @@ def test_untagged_files_follow_the_given_space(tmp_path):
         (
             "short.mrk.json",
             '{"markups": [{"controlPoints": [{"position": [1, 2]}]}]}',
-            "control point 0 has no 3-number",
+            "control point 1 has no 3-number",
         ),
         ("two.csv", "1,2\n", "line 1: expected 3 numbers x y z, got 2"),
         ("words.csv", "1,2,3\n4,five,6\n", "line 2: expected 3 numbers"),
-        ("nan.csv", "1,2,3\nnan,1,1\n", "point(s) 1 contain NaN"),
+        ("nan.csv", "1,2,3\nnan,1,1\n", "point(s) 2 (counted from 1) contain NaN"),
         ("empty.txt", "# nothing\n", "holds no points"),
         ("bad.fcsv", "# columns = id,x,y,z\n1,2,abc,4\n", "line 2: expected id,x,y,z"),
         ("points.xyz", "1 2 3\n", "unknown point file type"),

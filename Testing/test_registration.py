@@ -5,6 +5,7 @@ import re
 import numpy as np
 import pytest
 
+from RAMSICPRegistrationLib.core.coarse_checks import FAR_TOUCH_FLOOR_MM
 from RAMSICPRegistrationLib.core.registration import register
 from RAMSICPRegistrationLib.core.surface_index import SurfaceIndex
 from RAMSICPRegistrationLib.core.transforms import apply_transform, invert_transform, make_transform
@@ -91,15 +92,20 @@ def test_markers_in_the_wrong_order_are_reported(tibia_patient, tibia_index, rng
     case = _exact_case(tibia_patient, rng)
     case["markers_image"] = case["markers_image"][[1, 0, 2, 3]]
     result = register(tibia_index, method="cr", **case)
-    assert any("same order as the tool's" in warning for warning in result.warnings)
+    assert any("same order as the tool's" in alarm for alarm in result.alarms)
 
 
 def test_a_probe_point_off_the_bone_is_named(tibia_patient, tibia_index, rng):
     case = _exact_case(tibia_patient, rng)
     case["ppc"][7] += 25.0 * np.array([0.0, 1.0, 0.0]) @ tibia_patient.reference_to_image[:3, :3]
     result = register(tibia_index, method="cr-icp", **case)
-    assert result.residuals_mm[7] > 5.0
-    assert any("lie far from the bone surface" in warning and " 7 (" in warning for warning in result.warnings)
+    assert result.far_points == result.left_out == (7,)  # 25 mm off the bone after the CR: left out of the fit
+    assert result.coarse_distances_mm[7] > FAR_TOUCH_FLOOR_MM and result.residuals_mm[7] > 5.0
+    assert np.delete(result.residuals_mm, 7).max() < 0.01  # the others are IPC points: the fit is exact
+    assert any("left out of the fit: 8 (" in warning for warning in result.warnings)
+    kept = register(tibia_index, method="cr-icp", include_far=[7], **case)  # included by hand: used, and named
+    assert kept.far_points == (7,) and kept.left_out == ()
+    assert any("lie far from the bone surface" in warning and " 8 (" in warning for warning in kept.warnings)
 
 
 @pytest.mark.parametrize(
@@ -164,10 +170,11 @@ def test_a_fine_step_far_from_the_cr_is_an_alarm():
     # point-to-point ICP on 40,000 sampled points stops within the sampling's 0.1 mm
     assert result.fine_shift_mm == pytest.approx(5.0, abs=0.1)
     np.testing.assert_allclose(result.reference_to_image[:3, 3], (0.0, 0.0, 5.0), atol=0.1)
-    assert len(result.alarms) == 1
-    assert re.search(r"cr-icp moved probe point \d+ 5\.\d mm from where the CR put it", result.alarms[0])
-    assert "limit 1.0 mm" in result.alarms[0]
-    assert result.warnings[0] == result.alarms[0]  # the alarm leads the warnings
+    # the probe points lie 5 mm from the IPC after the CR, beyond the 3 mm far-touch floor: an alarm of its own
+    assert len(result.alarms) == 2 and "lie far from the bone after the coarse registration" in result.alarms[0]
+    assert re.search(r"cr-icp moved probe point \d+ 5\.\d mm from where the CR put it", result.alarms[1])
+    assert "limit 1.0 mm" in result.alarms[1]
+    assert result.warnings[:2] == result.alarms  # the alarms lead the warnings
     assert result.to_dict()["alarms"] == list(result.alarms)
     assert _ellipsoid_case((0.0, 0.0, 5.0), fle_mm=5.0).alarms == ()
     assert _ellipsoid_case((0.0, 0.0, 0.0), fle_mm=0.1).alarms == ()  # the IPC in place: nothing moves

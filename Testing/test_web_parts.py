@@ -189,9 +189,9 @@ def test_residual_spheres_and_rows_follow_the_table(scene):
         [("P1", 0.0, 0.0, 0.0, 0.25, 1), ("P2", 50.0, 0.0, 0.0, float("nan"), 0), ("P3", 0.0, 80.0, 0.0, 0.75, 1)],
     )
     assert residual_rows(table) == [
-        {"index": 0, "label": "P1", "residual": "0.25", "include": True},
-        {"index": 1, "label": "P2", "residual": "", "include": False},
-        {"index": 2, "label": "P3", "residual": "0.75", "include": True},
+        {"index": 0, "label": "P1", "residual": "0.25", "include": True, "note": ""},
+        {"index": 1, "label": "P2", "residual": "", "include": False, "note": ""},
+        {"index": 2, "label": "P3", "residual": "0.75", "include": True, "note": ""},
     ]
     registration = scene.AddNewNodeByClass("vtkMRMLLinearTransformNode", "ReferenceToImage")
     model = update_residual_points(scene, table, registration)

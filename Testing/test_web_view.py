@@ -202,3 +202,75 @@ def test_a_tracker_server_that_stops_shows_disconnected_then_valid_when_it_retur
     for name in ("ReferenceToTracker", "ProbeToTracker", "ProbeToReference"):
         session.wait_for_tool(name, "valid")
     assert session.button("Collect point").is_enabled()
+
+
+def _air_path(half_length_mm):
+    """(start, end) in reference coordinates of a path through the air beside the demo tibia's shaft: parallel to
+    its long axis, 60 mm out, ``half_length_mm`` each way; every point of it at least 10 mm from the bone."""
+    from RAMSICPRegistrationLib.core.transforms import apply_transform, invert_transform
+    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+
+    patient = shipped_patient("right-tibia")[0]
+    bone = apply_transform(invert_transform(patient.reference_to_image), patient.ipc[::20])
+    points = default_touch_points()
+    centre = points.mean(axis=0)
+    axes = np.linalg.svd(points - centre)[2]
+    start = centre + 60.0 * axes[1] - half_length_mm * axes[0]
+    end = centre + 60.0 * axes[1] + half_length_mm * axes[0]
+    path = np.linspace(start, end, 50)
+    assert min(np.linalg.norm(bone - point, axis=1).min() for point in path) > 10.0
+    return start, end
+
+
+def _auto_collect_until(session, count):
+    """Auto-collect from the page while the probe slides, until the page shows ``count`` probe points (a few more
+    come in before the switch is off)."""
+    session.page.locator("#auto-collect").click()
+    try:  # each point is saved to disk (flushed) as it comes: under load, under one point a second
+        session.page.wait_for_function(
+            "(count) => Number(document.querySelector('#probe-points').innerText) >= count", arg=count, timeout=300_000
+        )
+    except Exception as error:
+        raise AssertionError(
+            f"{session.text('#probe-points')} probe points, not {count}; the page says {session.text('#message')!r}"
+        ) from error
+    session.page.locator("#auto-collect").click()
+    session.page.wait_for_function("() => !document.querySelector('#auto-collect').checked")
+
+
+def test_a_touch_in_the_air_is_flagged_and_an_alarm_waits_for_acceptance(session):
+    """Issue 23: auto-collect recording points in the air between touches showed nothing, and the page showed no
+    alarm for a registration the command line fails with exit 4. Points collected while the probe slides 60 mm beside
+    the bone: the registration leaves them out, the residual table flags them (red rows with a note) and the warnings
+    say so; then so many points in the air that most are far from the bone: an alarm, in red, the registration not
+    used for navigation (no tip distance) until 'Accept registration' is clicked."""
+    start, end = _air_path(4.0)
+    session.probe.slide(start, end, period_s=4.0)  # 4 mm/s, as a hand moves between touches
+    _auto_collect_until(session, 41)
+    session.register()
+    session.wait_for_text("#warnings", "left out of the fit: 41 ")
+    total = session.page.locator("#residuals tbody tr").count()
+    far_rows = session.page.locator("#residuals tbody tr.far-point")
+    assert (
+        total > 40
+        and far_rows.count() == total - 40
+        and "far from the bone after the CR: " in far_rows.first.inner_text()
+    )
+    assert session.page.locator("#alarms").count() == 0
+    start, end = _air_path(60.0)
+    session.probe.slide(start, end, period_s=30.0)  # 8 mm/s: under 2 points a second to save
+    _auto_collect_until(session, 82)  # now most of the points are in the air: 40 on the bone, 42 or more off it
+    session.click("Register")  # a RAMSICP sweep over 80 points, most far from the bone: slow on a loaded machine
+    session.page.wait_for_function(
+        "() => !document.querySelector('#message').innerText.startsWith('auto-collect')", timeout=300_000
+    )
+    session.wait_for_text("#alarms", "ALARM: this registration is not used for navigation until you accept it")
+    assert "lie far from the bone after the coarse registration" in session.text("#alarms")
+    assert session.text("#message").startswith("ALARM, registration not applied")
+    session.probe.touch(session.points[20])
+    session.wait_for_tip_at(session.points[20])
+    assert session.text("#tip-to-surface") == "-"  # not navigated with the alarmed registration
+    session.click("Accept registration")
+    session.wait_for_text("#message", "^registration accepted despite")
+    assert session.page.locator("#alarms").count() == 0
+    session.wait_for_text("#tip-to-surface", "mm$")

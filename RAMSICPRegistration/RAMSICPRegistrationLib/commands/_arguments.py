@@ -27,5 +27,13 @@ SPEED = number(float, lambda value: value > 0, "give a speed above 0 mm/s")
 
 
 def threshold(text):
-    """``ramsicp ipc --threshold``: a number of HU, or 'auto' (Otsu)."""
-    return text if text == "auto" else number(float, lambda value: True, "give a number of HU or 'auto'")(text)
+    """``ramsicp ipc --threshold``: a number of HU that can separate bone from soft tissue, or 'auto' (Otsu)."""
+    from ..image.hounsfield import check_bone_threshold
+
+    if text == "auto":
+        return text
+    value = number(float, lambda value: True, "give a number of HU or 'auto'")(text)
+    try:
+        return check_bone_threshold(value)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None

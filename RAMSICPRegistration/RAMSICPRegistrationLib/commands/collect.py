@@ -2,12 +2,12 @@
 probe points in reference coordinates: each touch the tip held still or swivelled about one point, the rests at the
 start and the end reported apart."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from ..core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S, DEFAULT_TIP_ERROR_MM, MAX_DRIFT_MM
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..io.point_files import POINT_SUFFIXES
 from ._arguments import FINITE
@@ -32,7 +32,13 @@ def add_parser(commands):
         "--reference", default="ReferenceToTracker", help="the reference body's transform (default ReferenceToTracker)"
     )
     collect.add_argument(
-        "--tip", type=FINITE, nargs=3, required=True, metavar=("X", "Y", "Z"), help="the tip in the tool's frame (mm)"
+        "--tip",
+        type=FINITE,
+        nargs=3,
+        required=True,
+        metavar=("X", "Y", "Z"),
+        help="the tip in the tool's frame (mm): 30 to 500 mm from its origin, or 0 0 0 when --tool is the tip's own "
+        "transform",
     )
     collect.add_argument(  # HoldStillDetector checks the settings before any work
         "--hold-still-mm",
@@ -64,9 +70,11 @@ def run(arguments):
     from OpenIGTLinkBridgeLib.recorded_touches import find_recorded_touches, frame_timing
 
     from ..core.hold_still import HoldStillDetector
+    from ..core.pivot import check_tip_offset
     from ..io.point_files import write_points
 
     HoldStillDetector(arguments.hold_still_mm, arguments.hold_still_s, arguments.tip_error_mm)  # bad settings: now
+    check_tip_offset(arguments.tip)  # a tip in cm or m, before any work
     check_output_file(arguments.out, "--out", POINT_SUFFIXES, [arguments.recording])
     check_output_file(arguments.json, "--json", (".json",), [arguments.recording])
     recording = read_sequence(arguments.recording)
@@ -143,7 +151,7 @@ def run(arguments):
             "timing": timing,
             **found.to_dict(),
         }
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     return 0
 
 

@@ -1,9 +1,9 @@
 """``ramsicp cut-demo``: a simulated osteotomy through the whole chain (registration, robot calibration, the tool
 path over OpenIGTLink, live guidance), planned against executed endpoints (the paper's Fig. 6b)."""
 
-import json
 from pathlib import Path
 
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_folder
 from ..simulation.package_data import BONES
 from ._arguments import SEED, SPEED
@@ -36,7 +36,7 @@ def run(arguments):
     arguments.out.mkdir(parents=True, exist_ok=True)
     result = run_cut_trial(arguments.bone, arguments.seed, arguments.speed, progress=Progress())
     document = result.to_dict()
-    (arguments.out / "cut_result.json").write_text(json.dumps(document, indent=2), encoding="utf-8")
+    write_json_atomic(arguments.out / "cut_result.json", document)
     plot_cut_result(result, arguments.out / "cut_result.png")
     render_guidance(
         arguments.out / "guidance.png",

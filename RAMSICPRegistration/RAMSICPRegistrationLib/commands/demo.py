@@ -1,12 +1,12 @@
 """``ramsicp demo``: CR, CR-ICP, CR-RAMSICP and cr-fused on a virtual patient made from a real bone, against the
 paper's figures; ``--live`` plays one trial through the whole tracking chain."""
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..simulation.package_data import BONES
 from ._arguments import COUNT, SEED
@@ -77,7 +77,7 @@ def run(arguments):
     if arguments.json:  # written before anything is printed: a reader that leaves early loses nothing
         document = report.to_dict()
         document["seconds"]["total"] = total
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     print(_format_demo(report, total))
     return 0
 

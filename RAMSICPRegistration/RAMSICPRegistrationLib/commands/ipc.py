@@ -1,11 +1,11 @@
 """``ramsicp ipc``: a CT volume to the image point cloud (the bone's surface) and the marker-sphere centres."""
 
-import json
 import sys
 import time
 from pathlib import Path
 
-from ..image.hounsfield import DEFAULT_THRESHOLD_HU
+from ..image.hounsfield import DEFAULT_THRESHOLD_HU, check_hounsfield_units
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from ..io.point_files import POINT_SUFFIXES
@@ -78,6 +78,7 @@ def run(arguments):
     check_output_file(arguments.json, "--json", (".json",), [arguments.ct])
     clock = time.perf_counter()
     volume = load_volume(arguments.ct)
+    check_hounsfield_units(volume.voxels, threshold)
     load_seconds = time.perf_counter() - clock
     tool = tool_marker_geometry(arguments.tool)
     image = process_ct(
@@ -131,7 +132,7 @@ def run(arguments):
             "warnings": warnings,
             "seconds": seconds,
         }
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     if arguments.markers is not None and len(image.usable) < len(tool) and not arguments.accept_fewer:
         missing = [n for n in range(1, len(tool) + 1) if n not in {s.number for s in image.usable}]
         print(

@@ -2,10 +2,10 @@
 swivelled about its tip: plain least squares as PLUS and scikit-surgery compute it, or the robust default that names
 the poses it leaves out."""
 
-import json
 from pathlib import Path
 
 from ..core.pivot import METHODS
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ._console import decimals
 
@@ -88,5 +88,5 @@ def run(arguments):
             "times": "s from the first pose" if times is not None else None,
             **result.to_dict(),
         }
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     return 0

@@ -1,11 +1,11 @@
 """``ramsicp plan``: an osteotomy cut planned on the image point cloud: its plane, its four endpoints on the bone
 and the tool path, in image coordinates and, given ImageToRobotBase (eq. 4), the robot's."""
 
-import json
 import time
 from pathlib import Path
 
 from ..core.tool_path import DEFAULT_FAR_MARGIN_MM, DEFAULT_TOOL_WIDTH_MM, TOOLS
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..io.matrix_files import read_matrix
 from ._arguments import FINITE
@@ -27,7 +27,7 @@ def add_parser(commands):
         nargs=6,
         required=True,
         metavar=("X", "Y", "Z", "NX", "NY", "NZ"),
-        help="a point of the cut plane (its middle) and its normal, RAS mm",
+        help="a point of the cut plane (its middle, on the bone) and its normal, RAS mm",
     )
     plan.add_argument(
         "--depth",
@@ -67,6 +67,38 @@ def add_parser(commands):
     plan.set_defaults(run=run)
 
 
+#: The plane's point is the cut's middle: farther than this (mm) from every IPC point, it is not on this bone.
+PLANE_POINT_LIMIT_MM = 50.0
+
+
+def _check_plane_point_on_bone(point, ipc, explained_only=False):
+    """Refuse a plane point (3,) farther than ``PLANE_POINT_LIMIT_MM`` from the (M, 3) IPC, naming LPS or metres when
+    undoing that brings it onto the bone (with ``explained_only``, only then)."""
+    import numpy as np
+
+    point = np.asarray(point, dtype=np.float64)
+
+    def gap(candidate):
+        return float(np.sqrt(np.min(np.sum((ipc - candidate) ** 2, axis=1))))
+
+    distance = gap(point)
+    if distance <= PLANE_POINT_LIMIT_MM:
+        return
+    causes = (
+        (point * (-1.0, -1.0, 1.0), "it looks to be LPS: give it in RAS (x and y negated)"),
+        (point * 1000.0, "it looks to be in metres: give it in mm"),
+        (point * 10.0, "it looks to be in centimetres: give it in mm"),
+    )
+    cause = next((words for candidate, words in causes if gap(candidate) <= PLANE_POINT_LIMIT_MM), None)
+    if cause is None and explained_only:
+        return
+    raise ValueError(
+        f"--plane: the point ({', '.join(f'{value:g}' for value in point)}) is the cut's middle but lies "
+        f"{distance:.0f} mm from the bone; "
+        + (cause or "give a point on the bone, in the IPC's coordinates (image RAS, mm)")
+    )
+
+
 def run(arguments):
     from ..core.tool_path import plan_document, plan_osteotomy
     from ..io.point_files import _suffix, read_points
@@ -82,20 +114,25 @@ def run(arguments):
         points, triangles = read_surface_mesh(arguments.ipc, arguments.untagged_space)
     else:
         points = read_points(arguments.ipc, arguments.untagged_space).points
-    plans, path = plan_osteotomy(
-        points,
-        arguments.plane[:3],
-        arguments.plane[3:],
-        depth=arguments.depth,
-        extent_mm=arguments.extent,
-        wedge_deg=arguments.wedge,
-        triangles=triangles,
-        tool=arguments.tool,
-        width_mm=arguments.tool_width,
-        far_margin_mm=arguments.far_margin,
-    )
+    try:
+        plans, path = plan_osteotomy(
+            points,
+            arguments.plane[:3],
+            arguments.plane[3:],
+            depth=arguments.depth,
+            extent_mm=arguments.extent,
+            wedge_deg=arguments.wedge,
+            triangles=triangles,
+            tool=arguments.tool,
+            width_mm=arguments.tool_width,
+            far_margin_mm=arguments.far_margin,
+        )
+    except ValueError:
+        _check_plane_point_on_bone(arguments.plane[:3], points, explained_only=True)  # a unit or frame says why
+        raise
+    _check_plane_point_on_bone(arguments.plane[:3], points)  # a plane that crosses the bone, but far from the point
     document = plan_document(plans, path, image_to_base)
-    arguments.out.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    write_json_atomic(arguments.out, document)
     section = "exact (mesh)" if plans[0].section.exact else "from the IPC points within 0.3 mm"
     print(f"IPC              {arguments.ipc}: {len(points):,} points; section {section}")
     for number, plan in enumerate(plans):

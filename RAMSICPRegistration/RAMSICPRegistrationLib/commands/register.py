@@ -3,7 +3,6 @@ step), with FRE, TRE and the per-point residuals; given the plan's targets in th
 there, the next touch that lowers it most and, with a limit, whether it is enough (``core.touch_guidance``); exit 4
 when the result fails a check."""
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -12,10 +11,15 @@ import numpy as np
 
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.sweep import MAX_SCALES
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
-from ._arguments import FINITE, POSITIVE_MM
+from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
+from ._arguments import COUNT, FINITE, POSITIVE_MM
 from ._console import decimals
 from .exit_codes import EXIT_ALARM
+
+#: The inputs whose frame can be given one by one (``--<input>-space``).
+SPACE_OPTIONS = ("ipc", "ppc", "markers-image", "markers-patient", "targets-image", "targets-patient")
 
 
 def add_parser(commands):
@@ -42,6 +46,12 @@ def add_parser(commands):
         "--accept-flagged-markers",
         action="store_true",
         help="use marker centres that ramsicp ipc flagged partial or deformed (refused otherwise)",
+    )
+    reg.add_argument(
+        "--tool",
+        default=DEFAULT_REFERENCE_TOOL,
+        help=f"NDI reference body (default {DEFAULT_REFERENCE_TOOL}): patient marker centres that are its markers "
+        "must lie where its definition puts them (the reference frame is its frame)",
     )
     reg.add_argument(
         "--targets-image",
@@ -92,8 +102,25 @@ def add_parser(commands):
         "--untagged-space",
         type=str.upper,
         choices=("RAS", "LPS"),
-        default="RAS",
-        help="frame of files that do not state one (default RAS)",
+        help="frame of files that do not state one (default RAS); the options below set it for one input. When "
+        "neither the IPC nor the image markers state a frame, give it (nothing else can tell a mirror)",
+    )
+    for option in SPACE_OPTIONS:
+        reg.add_argument(
+            f"--{option}-space",
+            type=str.upper,
+            choices=("RAS", "LPS"),
+            help=f"frame of the --{option} file when it states none (default --untagged-space), e.g. LPS for a "
+            "model exported without its SPACE tag",
+        )
+    reg.add_argument(
+        "--include-far",
+        type=COUNT,
+        nargs="+",
+        default=(),
+        metavar="N",
+        help="probe points (numbered from 1) to keep in the fit although they lie far from the bone after the "
+        "coarse registration (left out otherwise, and listed)",
     )
     reg.add_argument(
         "--json",
@@ -104,14 +131,19 @@ def add_parser(commands):
 
 
 def run(arguments):
+    from ..core.coarse_checks import check_reference_frame
     from ..core.registration import register
     from ..core.surface_index import SurfaceIndex
     from ..core.sweep import make_scales
     from ..core.touch_guidance import touch_guidance
+    from ..io.ndi_tools import tool_marker_geometry
     from ..io.point_files import read_points
     from ..io.surface_files import read_surface_points
 
-    space = arguments.untagged_space
+    space = {
+        option: getattr(arguments, option.replace("-", "_") + "_space") or arguments.untagged_space or "RAS"
+        for option in SPACE_OPTIONS
+    }
     if arguments.targets_patient is not None and arguments.targets_image is None:
         raise ValueError("--targets-patient needs the same targets in the image: give --targets-image too")
     guided = arguments.reachable is not None or arguments.target_tre is not None
@@ -125,16 +157,26 @@ def run(arguments):
     inputs += (arguments.targets_image, arguments.targets_patient, arguments.reachable)
     check_output_file(arguments.json, "--json", (".json",), inputs)
     clock = time.perf_counter()
-    ipc = read_surface_points(arguments.ipc, space)
-    ppc = read_points(arguments.ppc, space).points
-    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space)
+    ipc, ipc_stated = read_surface_points(arguments.ipc, space["ipc"], with_space=True)
+    ppc = read_points(arguments.ppc, space["ppc"]).points
+    markers_image, markers_patient, marker_warnings = _read_markers_pair(arguments, space, ipc_stated)
     targets_image = targets_patient = reachable = None
     if arguments.targets_image:
-        targets_image = read_points(arguments.targets_image, space).points
+        targets_image = read_points(arguments.targets_image, space["targets-image"]).points
     if arguments.targets_patient:
-        targets_patient = read_points(arguments.targets_patient, space).points
+        targets_patient = read_points(arguments.targets_patient, space["targets-patient"]).points
     if arguments.reachable:
-        reachable = read_points(arguments.reachable, space).points
+        reachable = read_points(arguments.reachable, space["targets-image"]).points
+    check_reference_frame(ppc, f"--ppc {arguments.ppc}")
+    check_reference_frame(
+        markers_patient,
+        f"--markers-patient {arguments.markers_patient}",
+        tool_marker_geometry(arguments.tool),
+        f"NDI tool {arguments.tool}",
+    )
+    far_kept = [number - 1 for number in arguments.include_far]
+    if any(number > len(ppc) for number in arguments.include_far):
+        raise ValueError(f"--include-far {max(arguments.include_far)}: {arguments.ppc} has {len(ppc)} probe points")
     index = SurfaceIndex(ipc)
     result = register(
         index,
@@ -149,6 +191,7 @@ def run(arguments):
         scales=scales,
         policy=arguments.policy,
         fle_mm=arguments.fle,
+        include_far=far_kept,
     )
     guidance = None
     if result.uncertainty is not None and targets_image is not None:
@@ -160,7 +203,7 @@ def run(arguments):
         if guidance is not None:
             document.update(guidance_fields(guidance))
         document["seconds"] = seconds
-        arguments.json.write_text(json.dumps(document, indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, document)
     loud = marker_warnings + list(result.alarms)
     summary = _format_result(result, len(ipc), seconds, guidance)
     print("".join(f"WARNING: {warning}\n" for warning in loud) + summary)
@@ -175,18 +218,21 @@ def run(arguments):
     return 0
 
 
-def _read_markers_pair(arguments, space):
-    """Image and patient marker centres, paired by marker number; flagged ones refused unless accepted.
+def _read_markers_pair(arguments, space, ipc_stated=None):
+    """Image and patient marker centres, paired by marker number or row and checked by their distances
+    (``pair_marker_sets``: another order is re-paired and said); flagged ones refused unless accepted.
 
-    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): a warning for each flagged marker used.
+    Returns (markers_image (K, 3), markers_patient (K, 3), warnings): the re-pairing, and each flagged marker used.
     """
-    from ..io.marker_files import flagged_message, pair_markers, read_markers
+    from ..io.marker_files import flagged_message, pair_marker_sets, read_markers
 
-    image = read_markers(arguments.markers_image, space)
-    patient = read_markers(arguments.markers_patient, space)
-    markers_image, markers_patient, _ = pair_markers(image, patient)
+    image = read_markers(arguments.markers_image, space["markers-image"])
+    _check_image_frame_given(arguments, ipc_stated, image.stated_space)
+    patient = read_markers(arguments.markers_patient, space["markers-patient"])
+    pairing = pair_marker_sets(image, patient)
+    markers_image, markers_patient = pairing.image, pairing.patient
     if not image.flagged():
-        return markers_image, markers_patient, []
+        return markers_image, markers_patient, list(pairing.warnings)
     flagged = flagged_message(image)
     if not arguments.accept_flagged_markers:
         raise ValueError(
@@ -197,11 +243,24 @@ def _read_markers_pair(arguments, space):
     return (
         markers_image,
         markers_patient,
-        [
+        list(pairing.warnings)
+        + [
             f"{flagged} in {arguments.markers_image} (flagged by ramsicp ipc), used as you asked: the coarse "
             "registration may be off by that sphere's error"
         ],
     )
+
+
+def _check_image_frame_given(arguments, ipc_stated, markers_stated):
+    """Refuse when neither image-side file states its frame and none was given: both LPS read as RAS is a mirror
+    about S, which is a rotation, so the two agree, every check passes and the result is in the wrong frame."""
+    given = arguments.untagged_space or arguments.ipc_space or arguments.markers_image_space
+    if ipc_stated is None and markers_stated is None and not given:
+        raise ValueError(
+            f"neither {arguments.ipc} nor {arguments.markers_image} states its coordinate frame, and if both are LPS "
+            "read as RAS no check can see it (the mirror turns both alike): give their frame, --untagged-space RAS "
+            "or LPS (or --ipc-space and --markers-image-space); ramsicp ipc and Slicer write both tagged"
+        )
 
 
 def _default_method_fits(arguments):

@@ -51,6 +51,7 @@ def add_parser(commands):
 
 def run(arguments):
     from ..core.transforms import apply_transform, invert_transform
+    from ..io.atomic_files import write_json_atomic, write_text_atomic
     from ..io.marker_files import write_markers
     from ..io.point_files import write_points
     from ..simulation.package_data import BONES, shipped_patient
@@ -85,7 +86,7 @@ def run(arguments):
     write_points(paths["targets_patient"], trial.targets_patient, labels=targets)
     write_points(paths["targets_image"], trial.targets_image, labels=targets)
     origin, normal = _plane_through(trial.targets_image)
-    paths["cut_plane"].write_text(" ".join(f"{value:.6f}" for value in (*origin, *normal)) + "\n", encoding="utf-8")
+    write_text_atomic(paths["cut_plane"], " ".join(f"{value:.6f}" for value in (*origin, *normal)) + "\n")
     session = {
         "phantom": str(arguments.phantom),
         "bone": bone,
@@ -98,7 +99,7 @@ def run(arguments):
         ).tolist(),
         "files": {name: {"file": file, "frame": frame} for name, (file, frame) in FILES.items()},
     }
-    paths["session"].write_text(json.dumps(session, indent=2), encoding="utf-8")
+    write_json_atomic(paths["session"], session)
     print(f"session of the {bone.replace('-', ' ')} phantom in {arguments.phantom}:")
     print(f"  {len(trial.ppc)} probe touches in 8 sub-areas ({arguments.probe_noise:g} mm RMS), 4 targets, 4 markers")
     for file, frame in FILES.values():

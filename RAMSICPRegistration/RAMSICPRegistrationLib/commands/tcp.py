@@ -1,10 +1,10 @@
 """``ramsicp tcp``: the robot's tool-centre point by the four-point method, from flange poses."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic_files import write_json_atomic
 from ..io.file_checks import check_output_file
 from ..io.matrix_files import read_poses
 from ._console import decimals
@@ -39,5 +39,5 @@ def run(arguments):
     print(f"residuals        {decimals(result.residuals_mm)} mm; RMS {result.rms_mm:.3f} mm")
     print(f"least turn       {result.spread_deg:.1f} degrees about any axis")
     if arguments.json:
-        arguments.json.write_text(json.dumps(result.to_dict(), indent=2), encoding="utf-8")
+        write_json_atomic(arguments.json, result.to_dict())
     return 0

@@ -28,6 +28,9 @@ PAIRING_TOLERANCE_MM = 2.0
 #: Two centres closer than this (mm) are the same marker twice: spheres of 11.5 mm cannot be closer than 11.5 mm.
 MIN_MARKER_SEPARATION_MM = 5.0
 
+#: No reference body's markers span less than this (mm): NDI's passive tools span 50-135 mm.
+MIN_TOOL_SPAN_MM = 30.0
+
 #: Unit mistakes recognised by their scale (measured distances / reference distances), with what to say.
 _UNIT_SCALES = ((1e-3, "in metres"), (0.1, "in centimetres"), (1 / 25.4, "in inches"), (1e3, "in micrometres"))
 
@@ -90,6 +93,13 @@ def check_marker_centres(points, name, min_count=3, min_separation_mm=MIN_MARKER
     """
     points = as_points(points, name, min_count=min_count)
     distances = _distances(points)
+    span = float(distances.max())
+    if span < MIN_TOOL_SPAN_MM:  # the whole layout too small: a unit, not a duplicate
+        unit = "in metres" if span < 1.0 else "in centimetres or inches"
+        raise ValueError(
+            f"{name}: the {len(points)} markers span only {span:.3g} mm, where a reference body's span "
+            f"{MIN_TOOL_SPAN_MM:g} mm or more; the centres look to be {unit}, give them in mm"
+        )
     np.fill_diagonal(distances, np.inf)
     first, second = np.unravel_index(np.argmin(distances), distances.shape)
     if distances[first, second] < min_separation_mm:
@@ -190,7 +200,10 @@ def unit_hint(points, reference):
     ratio = measured / designed
     for scale, words in _UNIT_SCALES:
         if abs(np.log(ratio / scale)) < np.log(1.25):
-            return f"; the distances are {ratio:.3g} times the tool's: the centres look to be {words}, give them in mm"
+            return (
+                f"; the distances are {ratio:.3g} times the reference layout's: the centres look to be {words}, give "
+                "them in mm"
+            )
     return ""
 
 

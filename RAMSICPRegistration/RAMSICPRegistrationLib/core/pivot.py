@@ -218,3 +218,27 @@ def _check_rank(poses):
 def _residuals(poses, tip, pivot):
     """Distance (mm) of each pose's tip from the pivot, (N,)."""
     return np.linalg.norm(poses[:, :3, :3] @ tip + poses[:, :3, 3] - pivot, axis=1)
+
+
+#: Distances (mm) of a probe's tip from its tool origin that a real probe can have: NDI's passive pointers and the
+#: PlusLibData stylus (203.8 mm) lie between; 0 means a transform that is already the tip's (StylusTipToTracker).
+TIP_DISTANCE_RANGE_MM = (30.0, 500.0)
+
+
+def check_tip_offset(tip_mm, name="--tip"):
+    """Raise ValueError unless the (3,) tip offset (mm, in the probe's frame) is 0 or lies within
+    ``TIP_DISTANCE_RANGE_MM`` of the origin; the message names the unit it looks to be in (cm, m)."""
+    tip = np.asarray(tip_mm, dtype=np.float64).reshape(3)
+    distance = float(np.linalg.norm(tip))
+    low, high = TIP_DISTANCE_RANGE_MM
+    if distance == 0.0 or low <= distance <= high:
+        return tip
+    unit = next(
+        (words for factor, words in ((10.0, "centimetres"), (1000.0, "metres")) if low <= distance * factor <= high),
+        None,
+    )
+    cause = f"it looks to be in {unit}: give it in mm" if unit else "check the probe's calibration (pivot)"
+    raise ValueError(
+        f"{name} {' '.join(f'{value:g}' for value in tip)}: the tip is {distance:g} mm from the probe's origin, where "
+        f"no probe's tip lies ({low:g} to {high:g} mm, or 0 for a transform that is already the tip's); {cause}"
+    )

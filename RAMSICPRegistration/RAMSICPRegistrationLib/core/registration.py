@@ -10,6 +10,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .coarse_checks import diagnose_far_points, far_touches, marker_fit_alarm, mostly_far
 from .constraint import DEFAULT_PROBE_NOISE_MM, analyse_pose_constraint
 from .error_prediction import PoseUncertainty
 from .fused import (
@@ -78,7 +79,10 @@ class RegistrationResult:
     """A registration and everything measured about it. Distances in mm, transforms (4, 4).
 
     ``reference_to_image`` is the paper's ^P_I T (eq. 10); ``coarse_reference_to_image`` the CR alone (eq. 5).
-    ``residuals_mm`` are the distances of the registered probe points to the IPC, ``ppc_rms_mm`` their RMS.
+    ``residuals_mm`` (N,) are the distances of every given probe point to the IPC after registration, ``ppc_rms_mm``
+    their RMS over the points the fit used. ``far_points`` (0-based) lay far from the IPC after the CR
+    (``core.coarse_checks``; ``coarse_distances_mm`` (N,) are those distances); ``left_out`` are those the fine step
+    did not use (all far points but the ones given in ``include_far``). In ``to_dict`` both count from 1.
     ``tre_mm`` (eq. 11) and ``target_errors_mm`` need targets in both frames; ``predicted_cr_tre_mm`` is the
     Fitzpatrick-West-Maurer expectation of the CR's TRE at each target for the FLE in ``fle_mm`` (image targets are
     enough for it, and for the predicted errors below). ``targets_image`` are the image targets given, if any.
@@ -140,6 +144,10 @@ class RegistrationResult:
             return None
         return self.uncertainty.errors_at(self.targets_image).quantile_mm(0.95)
 
+    far_points: tuple = ()
+    left_out: tuple = ()
+    coarse_distances_mm: np.ndarray = None
+
     @property
     def predicted_tre_rms_mm(self):
         """RMS over the targets of ``predicted_tre_mm`` (mm), the figure to compare with ``tre_mm``; or None."""
@@ -188,6 +196,9 @@ class RegistrationResult:
             "targets_image": listed(self.targets_image),
             "alarms": list(self.alarms),
             "fine_shift_mm": self.fine_shift_mm,
+            "far_points": [index + 1 for index in self.far_points],
+            "left_out": [index + 1 for index in self.left_out],
+            "coarse_distances_mm": listed(self.coarse_distances_mm),
         }
 
 
@@ -206,6 +217,7 @@ def register(
     fle_mm=None,
     min_radius_mm=DEFAULT_MIN_RADIUS_MM,
     probe_noise_mm=DEFAULT_PROBE_NOISE_MM,
+    include_far=(),
 ):
     """Register the patient (reference frame) to the image: CR, CR-ICP (point to point or to plane), CR-RAMSICP or
     the fused fit (cr-fused).
@@ -225,6 +237,8 @@ def register(
         fle_mm: marker localisation error (RMS 3-D, mm) for the predicted TRE and cr-fused's marker weights;
             estimated from the FRE when None.
         probe_noise_mm: RMS 3-D probe-tip error (mm) behind cr-fused's surface weights.
+        include_far: 0-based probe points to use although they lie far from the IPC after the CR (the others that
+            do are left out of the fine step: ``core.coarse_checks.far_touches``).
 
     Raises:
         ValueError: bad points (see ``fit_rigid_transform``), an IPC too coarse to be the surface under the probe
@@ -241,7 +255,6 @@ def register(
     index = ipc if isinstance(ipc, SurfaceIndex) else SurfaceIndex(ipc)
     ppc = as_points(ppc, "PPC (probe points)", min_count=3)
     check_not_collinear(ppc, "PPC (probe points)")
-    index.check_covers(ppc)
     targets_patient, targets_image = _check_targets(targets_patient, targets_image)
     coarse = fit_rigid_transform(
         markers_patient,
@@ -249,7 +262,35 @@ def register(
         source_name="markers in the patient (reference)",
         target_name="markers in the image",
     )
-    warnings = _marker_warnings(coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
+    # A marker fit beyond the pairing tolerance is an alarm: the CR, and every limit scaled by its FRE, is off.
+    marker_warnings = _marker_warnings(coarse, np.asarray(markers_patient, float), np.asarray(markers_image, float))
+    warnings = []
+    fle = fle_mm if fle_mm is not None else fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
+    markers_patient, markers_image = np.asarray(markers_patient, float), np.asarray(markers_image, float)
+    touches = far_touches(index, ppc, coarse.transform, markers_image, fle, probe_noise_mm)
+    coarse_alarms = ()
+    if mostly_far(touches):  # not outliers: a mistake in the inputs, refused when a unit or frame explains it
+        message, explained = diagnose_far_points(index, ppc, markers_patient, markers_image, touches, coarse.fre_mm)
+        if explained:
+            raise ValueError(message)
+        index.check_covers(ppc)  # an IPC too sparse to be a surface says so first
+        coarse_alarms, left_out = (message,), ()
+    else:
+        left_out = tuple(i for i in touches.indices if i not in set(int(k) for k in include_far))
+    ppc_all, ppc = ppc, np.delete(ppc, left_out, axis=0)
+    if left_out:
+        warnings.append(
+            f"{len(left_out)} probe point(s) lie far from the bone after the coarse registration and were left out "
+            f"of the fit: {touches.describe(left_out)} (numbered from 1). Touched in the air or off the bone? "
+            "Include one by hand only if it was touched on the bone."
+        )
+    if len(ppc) < 3:
+        raise ValueError(
+            f"only {len(ppc)} probe points lie on the bone after the coarse registration (far: "
+            f"{touches.describe(touches.indices)}); collect more points on the bone"
+        )
+    check_not_collinear(ppc, "PPC (probe points near the bone)")
+    index.check_covers(ppc)
 
     transform, fine, entries, chosen_policy, fused = coarse.transform, None, (), None, None
     if method == "cr-fused":
@@ -289,7 +330,7 @@ def register(
             )
 
     residuals = surface_residuals(index, transform, ppc)
-    warnings += _outlier_warnings(residuals)
+    warnings += _outlier_warnings(residuals, np.delete(np.arange(len(ppc_all)), left_out))
     registered = apply_transform(transform, ppc)
     _, matches = index.nearest(registered)
     report = analyse_pose_constraint(registered, index.normals(matches), probe_noise_mm, long_axis=index.long_axis)
@@ -297,7 +338,6 @@ def register(
         held = " cr-fused holds that motion with the markers; see its predicted TRE." if fused is not None else ""
         warnings.append(report.warning + held)
 
-    fle = fle_mm if fle_mm is not None else fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
     shift, alarms = _alarms(
         method,
         coarse.transform,
@@ -309,7 +349,10 @@ def register(
         residuals,
         index,
         probe_noise_mm,
+        np.delete(np.arange(len(ppc_all)), left_out),
     )
+    fit_alarm = marker_fit_alarm(coarse.fre_mm, len(coarse.residuals_mm), fle_mm, ALARM_P)
+    alarms = coarse_alarms + alarms + ((fit_alarm,) if fit_alarm else ()) + tuple(marker_warnings)
     warnings = list(alarms) + warnings
     tre = errors = predicted = predicted_fused = uncertainty = None
     if fused is not None:
@@ -331,7 +374,7 @@ def register(
         fre_mm=coarse.fre_mm,
         marker_residuals_mm=coarse.residuals_mm,
         ppc_rms_mm=float(np.sqrt(np.mean(residuals**2))),
-        residuals_mm=residuals,
+        residuals_mm=surface_residuals(index, transform, ppc_all) if left_out else residuals,
         tre_mm=tre,
         target_errors_mm=errors,
         predicted_cr_tre_mm=predicted,
@@ -350,10 +393,15 @@ def register(
         fine_shift_mm=shift,
         targets_image=targets_image,
         uncertainty=uncertainty,
+        far_points=touches.indices,
+        left_out=left_out,
+        coarse_distances_mm=touches.distances_mm,
     )
 
 
-def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_error, residuals, index, noise_mm):
+def _alarms(
+    method, coarse, fine, ppc, targets_patient, markers_image, marker_error, residuals, index, noise_mm, numbers
+):
     """The checks a result must pass to be used: (the fine step's largest move from the CR in mm or None, alarms).
 
     The fine step (``fine``, None for the CR alone) must not move a probe point or target from where the CR put it by
@@ -362,7 +410,8 @@ def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_er
     noise and the IPC's spacing explain (F3 of ``core.fused``) of the IPC; after the CR alone, within that plus the
     CR's predicted error (the same ratio times its median over the probe points); never less than
     ``ALARM_FLOOR_MM``.
-    ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE).
+    ``marker_error`` is (FLE in mm, whether it was given rather than estimated from the FRE); ``numbers`` (0-based)
+    are the probe points' rows in the input (some may have been left out).
     """
     fle, fle_given = marker_error
     points = ppc if targets_patient is None else np.vstack((ppc, targets_patient))
@@ -375,7 +424,7 @@ def _alarms(method, coarse, fine, ppc, targets_patient, markers_image, marker_er
         limits = np.maximum(ratio * expected, ALARM_FLOOR_MM)
         largest, worst = float(moves.max()), int(np.argmax(moves / limits))
         if moves[worst] > limits[worst]:
-            which = f"probe point {worst}" if worst < len(ppc) else f"target {worst - len(ppc)}"
+            which = f"probe point {numbers[worst] + 1}" if worst < len(ppc) else f"target {worst - len(ppc) + 1}"
             alarms.append(
                 f"{method} moved {which} {moves[worst]:.1f} mm from where the CR put it, more than the marker error "
                 f"can explain (the CR's predicted error there is {expected[worst]:.2f} mm RMS for FLE {fle:.2f} mm; "
@@ -447,7 +496,7 @@ def _fused_warnings(fused, coarse, markers_patient, markers_image):
     if ratio > stats.f.ppf(1.0 - DISAGREEMENT_P, extra, 3 * count - 6):
         worst = int(np.argmax(moved))
         warnings.append(
-            f"The markers and the probe points disagree: the fused pose puts marker {worst} {moved[worst]:.2f} mm "
+            f"The markers and the probe points disagree: the fused pose puts marker {worst + 1} {moved[worst]:.2f} mm "
             f"from its image position, more than the markers' own scatter (FRE {coarse.fre_mm:.2f} mm) explains "
             f"(p < {DISAGREEMENT_P:g}). Check that marker's centre, the probe points and the IPC; a probe point "
             "matched to the wrong wall of a thin bone does this."
@@ -514,20 +563,22 @@ def _marker_warnings(coarse, markers_patient, markers_image):
     spacing_image = np.linalg.norm(markers_image[:, None] - markers_image[None], axis=2)
     mismatch = np.abs(spacing_patient - spacing_image).max()
     return [
-        f"Marker fit is poor: FRE {coarse.fre_mm:.2f} mm (marker {worst} is off by "
+        f"Marker fit is poor: FRE {coarse.fre_mm:.2f} mm (marker {worst + 1} is off by "
         f"{coarse.residuals_mm[worst]:.2f} mm; inter-marker distances differ by up to {mismatch:.1f} mm). "
-        "Check that the image markers are in the same order as the tool's and centred on the spheres."
+        "Check that the image markers are in the same order as the tool's and centred on the spheres "
+        "(io.marker_files.pair_marker_sets pairs them by their distances)."
     ]
 
 
-def _outlier_warnings(residuals):
+def _outlier_warnings(residuals, numbers):
+    """Probe points far from the surface after registration; ``numbers`` (0-based) are their rows in the input."""
     limit = max(OUTLIER_LIMIT_MM, 3.0 * float(np.median(residuals)))
     far = np.flatnonzero(residuals > limit)
     if not far.size:
         return []
-    listed = ", ".join(f"{i} ({residuals[i]:.2f} mm)" for i in far[:10])
+    listed = ", ".join(f"{numbers[i] + 1} ({residuals[i]:.2f} mm)" for i in far[:10])
     return [
-        f"{far.size} probe point(s) lie far from the bone surface after registration: {listed}. "
+        f"{far.size} probe point(s) lie far from the bone surface after registration (numbered from 1): {listed}. "
         "Exclude them if they were not touched on bone, and register again."
     ]
 

@@ -32,7 +32,10 @@ def as_points(values, name, min_count=1):
         raise ValueError(f"{name}: {points.shape[0]} point(s) given, at least {min_count} needed; collect more points")
     bad_rows = np.flatnonzero(~np.isfinite(points).all(axis=1))
     if bad_rows.size:
-        raise ValueError(f"{name}: point(s) {_row_list(bad_rows)} contain NaN or infinity; remove or re-collect them")
+        raise ValueError(
+            f"{name}: point(s) {_row_list(bad_rows + 1)} (counted from 1) contain NaN or infinity; remove or "
+            "re-collect them"
+        )
     return points
 
 
@@ -45,7 +48,7 @@ def check_distinct(points, name):
     if distances[first, second] < DUPLICATE_DISTANCE_MM:
         first, second = sorted((int(first), int(second)))
         raise ValueError(
-            f"{name}: points {first} and {second} are the same point "
+            f"{name}: points {first + 1} and {second + 1} (counted from 1) are the same point "
             f"({distances[first, second]:.2g} mm apart); each fiducial must be a distinct location"
         )
 

@@ -3,6 +3,7 @@ seen in its own plane, with the tool path and both sets of endpoints, and the en
 
 import numpy as np
 
+from ..io.atomic_files import atomic_path
 from .experiment_plots import _pyplot
 
 PLANNED_COLOUR = "#d62728"  # red, as the paper marks the image-space points
@@ -33,7 +34,8 @@ def plot_cut_result(result, path):
         fontsize=8,
     )
     figure.tight_layout(rect=(0, 0.04, 1, 0.95))
-    figure.savefig(path)
+    with atomic_path(path) as temporary:  # whole or not at all
+        figure.savefig(temporary)
     plt.close(figure)
 
 

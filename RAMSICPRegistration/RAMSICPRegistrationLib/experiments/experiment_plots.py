@@ -7,6 +7,7 @@ own numbers where the paper gives them, and offsets series that share an x so no
 
 import numpy as np
 
+from ..io.atomic_files import atomic_path
 from .experiments import FUSED, PAPER, PLANE, TARGET_FREE
 
 RAMSICP_PAPER = "CR-RAMSICP (paper's L)"
@@ -122,7 +123,8 @@ def plot_fig8(data, path):
     figure.suptitle("Fig. 8: TRE by method", fontsize=11)
     figure.text(0.5, 0.01, SD_NOTE, ha="center", fontsize=8)
     figure.tight_layout(rect=(0, 0.04, 1, 0.95))
-    figure.savefig(path)
+    with atomic_path(path) as temporary:  # whole or not at all
+        figure.savefig(temporary)
     plt.close(figure)
 
 
@@ -315,7 +317,8 @@ def _finish(plt, figure, path, title, handles, labels, note):
         fontsize=8, frameon=False,
     )  # fmt: skip
     figure.tight_layout(rect=(0, (1.8 + 1.1 * rows) * line, 1, 0.96))
-    figure.savefig(path)
+    with atomic_path(path) as temporary:  # whole or not at all
+        figure.savefig(temporary)
     plt.close(figure)
 
 

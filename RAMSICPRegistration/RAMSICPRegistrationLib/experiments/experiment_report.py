@@ -4,11 +4,11 @@ The report gives every figure bone by bone, cr-fused beside the paper's three me
 cr-fused (issue 11) one by one, and where and why our figures differ from the paper's.
 """
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic_files import atomic_folder, write_json_atomic, write_text_atomic
 from .experiment_plots import PLOTS, RAMSICP_FREE, RAMSICP_PAPER
 from .experiments import ERROR_MODEL, FIG9_LEVELS_MM, FUSED, PAPER, PLANE, TARGET_FREE
 
@@ -27,14 +27,14 @@ FUSED_TARGETS = {
 def write_outputs(results, directory):
     """Write results.json, the figures and report.md into ``directory``; returns the paths written."""
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = {"results": directory / "results.json", "report": directory / "report.md"}
-    paths["results"].write_text(json.dumps(results, indent=2), encoding="utf-8")
-    for name, data in results["experiments"].items():
-        paths[name] = directory / f"{name}.png"
-        PLOTS[name](data, paths[name])
-    paths["report"].write_text(_report(results, {k: v.name for k, v in paths.items()}), encoding="utf-8")
-    return paths
+    with atomic_folder(directory) as folder:  # all the files or none of them (the old ones stay)
+        paths = {"results": folder / "results.json", "report": folder / "report.md"}
+        write_json_atomic(paths["results"], results)
+        for name, data in results["experiments"].items():
+            paths[name] = folder / f"{name}.png"
+            PLOTS[name](data, paths[name])
+        write_text_atomic(paths["report"], _report(results, {k: v.name for k, v in paths.items()}))
+    return {name: directory / path.name for name, path in paths.items()}
 
 
 def fused_checks(experiments):

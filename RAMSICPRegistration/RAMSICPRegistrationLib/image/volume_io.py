@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic_files import atomic_path
 from ..io.file_checks import PointFileError, check_input_file
 
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -180,7 +181,8 @@ def save_nrrd(path, volume):
         "kinds": ["domain", "domain", "domain"],
         "encoding": "gzip",
     }
-    nrrd.write(str(path), voxels, header, index_order="F")
+    with atomic_path(path) as temporary:  # whole or not at all
+        nrrd.write(str(temporary), voxels, header, index_order="F")
 
 
 def _read_nrrd(path):

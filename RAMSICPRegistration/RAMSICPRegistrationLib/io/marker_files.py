@@ -9,10 +9,13 @@ by hand, the tool geometry) have neither: their points pair row by row and count
 """
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..core.marker_geometry import PAIRING_TOLERANCE_MM, check_marker_centres, pair_by_geometry, unit_hint
+from ..core.paired_point import rigid_procrustes
+from ..core.transforms import apply_transform
 from .point_files import read_points, write_points
 
 STATUSES = ("ok", "partial", "deformed")
@@ -31,6 +34,7 @@ class MarkerSet:
     numbers: tuple
     statuses: tuple
     path: str = ""
+    stated_space: str = None  # the frame the file stated, or None
 
     @property
     def numbered(self):
@@ -74,7 +78,8 @@ def check_markers_path(path):
 def read_markers(path, untagged_space="RAS"):
     """Read a markers file (any point file); numbers and statuses come from ``M<n> <status>`` labels."""
     point_set = read_points(path, untagged_space)
-    return labelled_markers(point_set.points, point_set.labels, str(path))
+    markers = labelled_markers(point_set.points, point_set.labels, str(path))
+    return replace(markers, stated_space=point_set.stated_space)
 
 
 def labelled_markers(points, labels, source=""):
@@ -124,6 +129,105 @@ def pair_markers(image, patient):
         raise ValueError(f"{image.path}: marker {missing[0]} has no partner ({where}); check the marker numbers")
     chosen = [rows[number] for number in numbers]
     return image.points, patient.points[chosen], np.array(numbers)
+
+
+@dataclass(frozen=True)
+class MarkerPairing:
+    """Image and patient marker centres paired for the coarse registration.
+
+    ``image`` and ``patient`` are (K, 3) mm, row k of one the same marker as row k of the other; ``image_rows`` and
+    ``patient_rows`` (K,) say which row of each file (0-based) they are; ``warnings`` says when the pairing is not
+    the one the files' numbers or order gave (re-paired by the markers' distances).
+    """
+
+    image: np.ndarray
+    patient: np.ndarray
+    image_rows: tuple
+    patient_rows: tuple
+    warnings: tuple = ()
+
+
+def pair_marker_sets(image, patient, tolerance_mm=PAIRING_TOLERANCE_MM):
+    """Pair image and patient marker centres, checked by the tool's geometry (``core.marker_geometry``).
+
+    Both sides are the same rigid layout, whose inter-marker distances NDI designs to differ, so the distances say
+    which centre is which. The pairing the files give (``pair_markers``: numbers, else rows) is kept when it fits
+    rigidly within ``tolerance_mm``; otherwise the centres are paired by their distances and the user told so. Both
+    sides are first checked: at least 3 centres, none duplicated, not in a line.
+
+    Raises:
+        ValueError: duplicated or collinear centres; no pairing within the tolerance (naming a unit mistake when the
+            distances are those of metres, centimetres or inches); two pairings fit equally (cannot tell which).
+    """
+    image_name, patient_name = image.path or "marker centres (image)", patient.path or "marker centres (patient)"
+    if len(image.points) >= 2 and len(patient.points) >= 2:
+        hint = unit_hint(patient.points, image.points)  # the CT is in mm: a unit off shows on the patient side
+        if hint:
+            raise ValueError(f"{patient_name}: the markers do not pair with {image_name}{hint}")
+    check_marker_centres(image.points, image_name)
+    check_marker_centres(patient.points, patient_name)
+    try:
+        given_image, given_patient, _ = pair_markers(image, patient)
+        given_rows = _rows_of(image, patient, given_patient)
+    except ValueError:
+        given_rows = None
+    if given_rows is not None and len(given_image) >= 3 and _fits(given_image, given_patient, tolerance_mm):
+        image_rows = tuple(range(len(image.points)))
+        return MarkerPairing(given_image, given_patient, image_rows, given_rows)
+    geometric = pair_by_geometry(
+        patient.points,
+        image.points,
+        tolerance_mm,
+        points_name=patient_name,
+        reference_name=f"the image's marker centres ({image_name})",
+    )
+    if geometric.ambiguous:
+        raise ValueError(
+            f"{patient_name}: the order does not pair with {image_name} and two pairings by the markers' distances "
+            f"fit within {tolerance_mm:g} mm (FRE {geometric.fre_mm:.2f} and {geometric.runner_up_fre_mm:.2f} mm); "
+            "check the centres and give the patient markers in the order of the image's (M1, M2, ...)"
+        )
+    image_rows = tuple(int(row) for row in np.flatnonzero(geometric.paired))
+    if len(image_rows) < min(len(image.points), len(patient.points)):
+        unpaired = [_marker_name(image, row) for row in np.flatnonzero(~geometric.paired)]
+        raise ValueError(
+            f"{image_name} and {patient_name}: only {len(image_rows)} of the markers pair within {tolerance_mm:g} mm "
+            f"by their distances; {', '.join(unpaired)} fits none of the patient's (a misplaced centre, or a "
+            "marker moved since the CT): correct it, or delete it from the file (three markers are enough)"
+        )
+    patient_rows = tuple(int(geometric.indices[row]) for row in image_rows)
+    names = [_marker_name(image, row) for row in image_rows]
+    pairs = ", ".join(f"{name} = row {patient_row + 1}" for name, patient_row in zip(names, patient_rows))
+    warning = (
+        f"the patient marker centres ({patient_name}) are not in the image's order ({image_name}): paired by the "
+        f"markers' distances instead ({pairs}; FRE {geometric.fre_mm:.2f} mm)"
+    )
+    return MarkerPairing(
+        image.points[list(image_rows)], patient.points[list(patient_rows)], image_rows, patient_rows, (warning,)
+    )
+
+
+def _rows_of(image, patient, paired_patient):
+    """The patient rows (0-based) of ``pair_markers``'s patient points, or None when a row cannot be found."""
+    rows = []
+    for point in paired_patient:
+        matches = np.flatnonzero((patient.points == point).all(axis=1))
+        if not matches.size:
+            return None
+        rows.append(int(matches[0]))
+    return tuple(rows)
+
+
+def _fits(image_points, patient_points, tolerance_mm):
+    """True when ``patient_points`` map rigidly onto ``image_points`` with every residual within the tolerance."""
+    transform = rigid_procrustes(patient_points, image_points)
+    residuals = np.linalg.norm(apply_transform(transform, patient_points) - image_points, axis=1)
+    return bool(residuals.max() <= tolerance_mm)
+
+
+def _marker_name(marker_set, row):
+    number = marker_set.numbers[row] if row < len(marker_set.numbers) else None
+    return f"image M{number}" if number is not None else f"image row {row + 1}"
 
 
 def flagged_message(marker_set):

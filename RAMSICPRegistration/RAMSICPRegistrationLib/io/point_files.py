@@ -8,7 +8,6 @@ files that cannot state it (``.npy``, text files without the comment) are taken 
 
 import csv
 import json
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.validation import as_points
+from .atomic_files import atomic_path
 from .file_checks import PointFileError, check_input_file
 
 SPACES = ("RAS", "LPS")
@@ -29,10 +29,12 @@ POINT_SUFFIXES = (".mrk.json", ".json", ".fcsv", ".csv", ".txt", ".npy")
 
 @dataclass(frozen=True)
 class PointSet:
-    """Points read from a file: ``points`` (N, 3) RAS mm, one label per point (may be empty strings)."""
+    """Points read from a file: ``points`` (N, 3) RAS mm, one label per point (may be empty strings), and the frame
+    the file stated (``stated_space``: 'RAS' or 'LPS', None when it stated none and ``untagged_space`` was used)."""
 
     points: np.ndarray
     labels: tuple = field(default=())
+    stated_space: str = None
 
     def __len__(self):
         return len(self.points)
@@ -69,6 +71,7 @@ def read_points(path, untagged_space="RAS"):
         raise
     except (OSError, UnicodeDecodeError) as error:
         raise PointFileError(path, f"cannot read ({error})") from None
+    stated = space
     if space is None:
         space = untagged_space
     try:
@@ -76,17 +79,27 @@ def read_points(path, untagged_space="RAS"):
     except ValueError as error:
         raise PointFileError(path, str(error)) from None
     labels = tuple(labels) if labels else ("",) * len(points)
-    return PointSet(points=to_ras(points, space), labels=labels)
+    return PointSet(points=to_ras(points, space), labels=labels, stated_space=stated)
 
 
-def write_points(path, points, labels=None):
-    """Write (N, 3) RAS points to ``path``; the file type follows the suffix (LPS for markups, as Slicer)."""
+def write_points(path, points, labels=None, durable=False):
+    """Write (N, 3) RAS points to ``path``; the file type follows the suffix (LPS for markups, as Slicer).
+
+    Written whole or not at all (``io.atomic_files``); ``durable`` also flushes it to the disk.
+    """
     path = Path(path)
     points = as_points(points, "points", min_count=0)
     labels = list(labels) if labels is not None else [f"F-{i + 1}" for i in range(len(points))]
     if len(labels) != len(points):
         raise ValueError(f"labels: {len(labels)} given for {len(points)} points")
     suffix = _suffix(path)
+    if suffix not in POINT_SUFFIXES:
+        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
+    with atomic_path(path, durable=durable) as temporary:
+        _write_points_as(temporary, suffix, points, labels)
+
+
+def _write_points_as(path, suffix, points, labels):
     if suffix in (".mrk.json", ".json"):
         _write_markups_json(path, points, labels)
     elif suffix == ".fcsv":
@@ -97,35 +110,14 @@ def write_points(path, points, labels=None):
         np.savetxt(path, points, fmt="%.17g", delimiter=delimiter, header=header[2:], comments="# ")
     elif suffix == ".npy":
         np.save(path, points)
-    else:
-        raise PointFileError(path, f"unknown point file type; use one of {', '.join(POINT_SUFFIXES)}")
 
 
 def write_points_atomic(path, points, labels=None):
-    """``write_points``, but a crash at any moment leaves either the previous complete file or the new one.
-
-    The points go to a temporary file beside ``path``, which is flushed to the disk and then renamed over
-    ``path`` (``os.replace`` is atomic on POSIX and Windows); the folder is created when missing. Used for the
-    autosave of every collected point, so a killed process or a power cut never leaves half a file.
-    """
+    """``write_points``, flushed to the disk, its folder created when missing: a crash or a power cut at any moment
+    leaves either the previous complete file or the new one. Used for the autosave of every collected point."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    suffix = _suffix(path)
-    temporary = path.with_name(f".{path.name[: len(path.name) - len(suffix)]}.partial{suffix}")
-    try:
-        write_points(temporary, points, labels)
-        with open(temporary, "rb+") as stream:
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    if hasattr(os, "O_DIRECTORY"):  # make the rename itself durable (POSIX)
-        folder = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-        try:
-            os.fsync(folder)
-        finally:
-            os.close(folder)
+    write_points(path, points, labels, durable=True)
 
 
 def _suffix(path):
@@ -158,7 +150,7 @@ def _read_markups_json(path):
             continue
         position = control_point.get("position")
         if not isinstance(position, list) or len(position) != 3:
-            raise PointFileError(path, f"control point {number} has no 3-number 'position'")
+            raise PointFileError(path, f"control point {number + 1} has no 3-number 'position'")
         points.append(position)
         labels.append(str(control_point.get("label", "")))
     if not points:
@@ -222,9 +214,24 @@ def _write_fcsv(path, points, labels):
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+#: Column names a text file's header may give its coordinates, with the frame they state (None: not stated). Slicer's
+#: markups control points table (``label,l,p,s,defined,...`` or ``label,r,a,s,...``) names them by its frame.
+_COORDINATE_COLUMNS = ((("x", "y", "z"), None), (("r", "a", "s"), "RAS"), (("l", "p", "s"), "LPS"))
+#: A number written with a decimal comma, as spreadsheets in many locales write them: ``-12,5``.
+_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+(?:[eE][-+]?\d+)?")
+
+
 def _read_text(path):
-    space, points = None, []
-    for line_number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    """Points of a .csv/.txt file: one point per line, x y z separated by commas, semicolons, tabs or spaces.
+
+    A header line of column names picks the coordinates by name in any order (``z,y,x``; Slicer's control points
+    table ``label,l,p,s,defined,...``, whose ``l,p,s`` or ``r,a,s`` names also state the frame; rows with
+    ``defined`` 0 are skipped). Decimal commas are read when the columns are separated by something else
+    (``1,5;2,5;3,5``); separated by commas as well they cannot be told apart from the separators, and the line is
+    refused with that cause.
+    """
+    space, points, labels, columns = None, [], [], None
+    for line_number, line in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), start=1):
         stripped = line.strip()
         if not stripped:
             continue
@@ -232,19 +239,78 @@ def _read_text(path):
             match = re.search(r"SPACE\s*=\s*(RAS|LPS)", stripped, re.IGNORECASE)
             space = match.group(1).upper() if match else space
             continue
-        fields = [value for value in re.split(r"[,;\s]+", stripped) if value]
+        separator = next((mark for mark in (";", "\t") if mark in stripped), "," if "," in stripped else None)
+        words = stripped.split()
+        if separator == "," and len(words) > 1 and all(_DECIMAL_COMMA.fullmatch(w) or _is_number(w) for w in words):
+            separator = " "  # "1,5 -2,25 3": columns by spaces, decimal commas
+        fields = [value.strip() for value in (words if separator in (None, " ") else stripped.split(separator))]
+        if separator in (";", "\t", " "):
+            fields = [value.replace(",", ".") if _DECIMAL_COMMA.fullmatch(value) else value for value in fields]
+        if columns is None and not points and not any(_is_number(value) for value in fields if value):
+            columns, stated = _header_columns(path, line_number, fields)
+            space = stated or space
+            continue
+        if columns is not None:
+            point, label, defined = _named_row(path, line_number, fields, columns, stripped)
+            if defined:
+                points.append(point)
+                labels.append(label)
+            continue
+        fields = [value for value in fields if value]
         try:
             values = [float(value) for value in fields]
         except ValueError:
-            if not points and all(re.fullmatch(r"[A-Za-z_ ]+", value) for value in fields):
-                continue  # a column header such as "x,y,z"
             raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {stripped!r}") from None
         if len(values) != 3:
-            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {len(values)}")
+            hint = ""
+            if separator == "," and len(values) == 6:
+                hint = (
+                    " (decimal commas? '1,5,2,5,3,5' cannot be told from six numbers: write decimals with a point, "
+                    "or separate the columns by ';' or tabs)"
+                )
+            raise PointFileError(path, f"line {line_number}: expected 3 numbers x y z, got {len(values)}{hint}")
         points.append(values)
+        labels.append("")
     if not points:
         raise PointFileError(path, "holds no points (expected one 'x y z' line per point)")
-    return points, None, space
+    return points, labels if any(labels) else None, space
+
+
+def _is_number(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_columns(path, line_number, fields):
+    """{'x': column, 'y': ..., 'z': ..., optionally 'label', 'defined'} from a header line, and the frame its
+    coordinate names state (or None)."""
+    names = [value.lower() for value in fields]
+    for axes, stated in _COORDINATE_COLUMNS:
+        if all(axis in names for axis in axes):
+            columns = {key: names.index(axis) for key, axis in zip("xyz", axes)}
+            columns.update({key: names.index(key) for key in ("label", "defined") if key in names})
+            return columns, stated
+    raise PointFileError(
+        path,
+        f"line {line_number}: the header {','.join(fields)!r} names no coordinate columns; name them x,y,z (any "
+        "order), r,a,s or l,p,s (as Slicer's control points table)",
+    )
+
+
+def _named_row(path, line_number, fields, columns, text):
+    """(point [x, y, z], label, defined) of a data line read by its header's columns."""
+    try:
+        point = [float(fields[columns[axis]]) for axis in "xyz"]
+    except (IndexError, ValueError):
+        raise PointFileError(
+            path, f"line {line_number}: expected numbers in the header's coordinate columns, got {text!r}"
+        ) from None
+    label = fields[columns["label"]] if "label" in columns and columns["label"] < len(fields) else ""
+    defined = "defined" not in columns or columns["defined"] >= len(fields) or fields[columns["defined"]] != "0"
+    return point, label, defined
 
 
 def _read_npy(path):

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic_files import atomic_path
 from .file_checks import PointFileError, check_input_file
 from .point_files import POINT_SUFFIXES, _check_space, _suffix, read_points, to_ras
 from .vtk_arrays import poly_data
@@ -18,16 +19,20 @@ from .vtk_arrays import poly_data
 SURFACE_SUFFIXES = (".vtk", ".vtp", ".stl", ".ply", ".obj")
 
 
-def read_surface_points(path, untagged_space="RAS"):
-    """IPC points (M, 3) in RAS mm from a surface (its vertices) or from a point file."""
+def read_surface_points(path, untagged_space="RAS", with_space=False):
+    """IPC points (M, 3) in RAS mm from a surface (its vertices) or from a point file; with ``with_space``, also the
+    frame the file stated ('RAS', 'LPS', or None when it stated none)."""
     path = Path(path)
     if _suffix(path) in POINT_SUFFIXES:
-        return read_points(path, untagged_space).points
-    return read_surface_mesh(path, untagged_space)[0]
+        point_set = read_points(path, untagged_space)
+        return (point_set.points, point_set.stated_space) if with_space else point_set.points
+    vertices, _, stated = read_surface_mesh(path, untagged_space, with_space=True)
+    return (vertices, stated) if with_space else vertices
 
 
-def read_surface_mesh(path, untagged_space="RAS"):
-    """Vertices (M, 3) RAS mm and triangles (K, 3) vertex indices of a surface file.
+def read_surface_mesh(path, untagged_space="RAS", with_space=False):
+    """Vertices (M, 3) RAS mm and triangles (K, 3) vertex indices of a surface file (with ``with_space``, also the
+    frame its header stated, or None).
 
     Polygons are triangulated; a file with vertices but no polygons gives an empty (0, 3) triangle array.
 
@@ -51,7 +56,8 @@ def read_surface_mesh(path, untagged_space="RAS"):
     if errors or mesh is None or mesh.GetNumberOfPoints() == 0:
         detail = errors[0].strip().splitlines()[-1] if errors else "no points in it"
         raise PointFileError(path, f"cannot read as {suffix[1:].upper()} surface ({detail})")
-    space = _space_from_text(header_of(reader, mesh)) or untagged_space
+    stated = _space_from_text(header_of(reader, mesh))
+    space = stated or untagged_space
     vertices = to_ras(vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64), space)
     if not np.isfinite(vertices).all():
         raise PointFileError(path, "contains NaN or infinite coordinates")
@@ -64,7 +70,7 @@ def read_surface_mesh(path, untagged_space="RAS"):
         triangulate.Update()
         cells = triangulate.GetOutput().GetPolys()
         triangles = vtk_to_numpy(cells.GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
-    return vertices, triangles
+    return (vertices, triangles, stated) if with_space else (vertices, triangles)
 
 
 def write_surface(path, vertices, triangles=None):
@@ -90,15 +96,16 @@ def write_surface(path, vertices, triangles=None):
     elif suffix == ".ply":
         writer.AddComment("SPACE=LPS")
     errors = _collect_errors(writer)
-    writer.SetFileName(str(path))
-    writer.SetInputData(mesh)
-    with _vtk_console_silenced():
-        written = writer.Write()
-    if not written or errors:
-        raise PointFileError(path, f"cannot write ({errors[0].strip() if errors else 'writer failed'})")
-    if suffix == ".obj":
-        # vtkOBJWriter writes no header comment; put the tag where Slicer's reader looks for it.
-        path.write_text("# SPACE=LPS\n" + path.read_text(encoding="utf-8"), encoding="utf-8")
+    with atomic_path(path) as temporary:  # whole or not at all
+        writer.SetFileName(str(temporary))
+        writer.SetInputData(mesh)
+        with _vtk_console_silenced():
+            written = writer.Write()
+        if not written or errors:
+            raise PointFileError(path, f"cannot write ({errors[0].strip() if errors else 'writer failed'})")
+        if suffix == ".obj":
+            # vtkOBJWriter writes no header comment; put the tag where Slicer's reader looks for it.
+            temporary.write_text("# SPACE=LPS\n" + temporary.read_text(encoding="utf-8"), encoding="utf-8")
 
 
 def _reader(suffix):

@@ -31,7 +31,6 @@ runs for as long as the navigation lives (in Slicer the module's logic owns it, 
 shown), connects, writes and reads the robot link and turns its answer into the status message.
 """
 
-import json
 import logging
 import time
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ import numpy as np
 from ..core.guidance import cut_guidance
 from ..core.hold_still import HoldStillDetector
 from ..core.tool_path import plan_document
+from ..io.atomic_files import write_json_atomic
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from . import cutting
 from .navigation import NavigationLogic, matrix_of, points_of
@@ -72,6 +72,7 @@ ACTIONS = (
     "set_auto_collect",
     "set_hold_still_collect",
     "register",
+    "accept_registration",
     "set_included",
     "robot_calibration",
     "plan_cut",
@@ -127,6 +128,12 @@ class NavigationStatus:
     cut: str = ""  # the plan in words ("" before planning)
     robot: str = ""  # the robot's state in words ("" before a path was sent)
     robot_progress: tuple = None  # (poses passed, poses in the path) while a path is out
+    # The last registration's alarms while it waits for the user's acceptance (not applied to navigation until
+    # then), distinct from its warnings, which inform; and its probe points far from the bone after the CR
+    # (numbered from 1), left out of the fit until included by hand.
+    alarms: tuple = ()
+    warnings: tuple = ()
+    far_points: tuple = ()
 
     def tool(self, label):
         return next(tool for tool in self.tools if tool.label == label)
@@ -258,6 +265,7 @@ class NavigationController:
         self._probe_frames = 0
         self._message = ("", False)
         self._cut = None  # cutting.PlannedCut
+        self._pending = None  # a registration with alarms, not applied until accepted
 
     def _attach_parameter_node(self):
         node = get_parameter_node(self.scene)
@@ -380,6 +388,7 @@ class NavigationController:
             guidance=self._guidance(parameters),
             cut=self._cut_text(parameters),
             **self._robot_report(),
+            **self._registration_report(),
         )
 
     def _tip_reference_mm(self, parameters):
@@ -403,7 +412,7 @@ class NavigationController:
 
     def _tip_to_surface_mm(self, parameters):
         nodes = (parameters.ipcModel, parameters.probeToReference, parameters.probeTipToProbe)
-        if any(node is None for node in nodes) or parameters.referenceToImage is None:
+        if any(node is None for node in nodes) or parameters.referenceToImage is None or self._pending is not None:
             return None
         if self.tool_state("probeToReference").state != "valid":
             return None
@@ -414,7 +423,12 @@ class NavigationController:
 
     def _predicted_error_at_tip_mm(self, parameters):
         result = self.last_result
-        if result is None or result.pose_covariance is None or parameters.probeTipToProbe is None:
+        if (
+            result is None
+            or self._pending is not None
+            or result.pose_covariance is None
+            or parameters.probeTipToProbe is None
+        ):
             return None
         if parameters.probeToReference is None or self.tool_state("probeToReference").state != "valid":
             return None
@@ -449,6 +463,7 @@ class NavigationController:
                 (parameters.referenceToTracker, "select ReferenceToTracker"),
                 (parameters.referenceToImage, "register first (step 4)"),
             ),
+            "accept_registration": None if self._pending is not None else "no registration is waiting for acceptance",
             "set_included": None if parameters.residualTable is not None else "register once first",
             "plan_cut": _first_missing(
                 (parameters.osteotomyPlane, "place a plane on the bone (Markups toolbar) and select it"),
@@ -662,14 +677,46 @@ class NavigationController:
             sweep=True,
             policy=parameters.policy if method == "cr-ramsicp" else None,
         )
+        self.last_result = result
+        self._pending = result if result.alarms else None
+        if result.alarms:  # an alarm stops: not applied to navigation until the user accepts it
+            self._say(
+                f"ALARM, registration not applied: {result.alarms[0]} ({len(result.alarms)} alarm(s); accept the "
+                "registration to navigate with it anyway)",
+                is_error=True,
+            )
+        else:
+            self._apply(result)
+            self._say(registration_summary(result))
+        self._notify("registered", result)
+        return result
+
+    def accept_registration(self):
+        """Apply the registration whose alarms the user has read (``status().alarms``) to navigation."""
+        self._require("accept_registration")
+        result, self._pending = self._pending, None
+        self._apply(result)
+        self._say(f"registration accepted despite {len(result.alarms)} alarm(s): {registration_summary(result)}")
+        self._notify("accepted", result)
+        return result
+
+    def _apply(self, result):
+        """ReferenceToImage from ``result``, and the probe under it: the probe then moves over the CT."""
+        parameters = self.parameters
+        self.steps.apply_registration(result)
         if parameters.probeTipToProbe is not None and parameters.probeToReference is not None:
             self.steps.build_hierarchy(
                 parameters.probeTipToProbe, parameters.probeToReference, parameters.referenceToImage
             )
-        self.last_result = result
-        self._say(registration_summary(result))
-        self._notify("registered", result)
-        return result
+
+    def _registration_report(self):
+        """The last registration's alarms (while unaccepted), warnings and far probe points, for ``status()``."""
+        result = self.last_result
+        if result is None:
+            return {}
+        alarms = () if self._pending is None else tuple(result.alarms)
+        warnings = tuple(warning for warning in result.warnings if warning not in result.alarms)
+        return {"alarms": alarms, "warnings": warnings, "far_points": tuple(self.steps.far_points())}
 
     def set_included(self, point_index, included):
         """Include or exclude probe point ``point_index`` (0-based) from the next registration."""
@@ -716,7 +763,7 @@ class NavigationController:
         if path.is_dir():
             raise WorkflowError(f"{path} is a folder; give a file name ending in .json")
         try:
-            path.write_text(json.dumps(document, indent=2), encoding="utf-8")
+            write_json_atomic(path, document)
         except OSError as error:
             raise WorkflowError(f"cannot write the plan to {path} ({error.strerror or error})") from None
         self._say(f"plan written to {path}")
@@ -819,9 +866,12 @@ class NavigationController:
         self.robot = None
 
     def _guidance(self, parameters):
-        """CutGuidance of the tracked tool while it and the reference body are tracked and a plan exists."""
-        if self._cut is None or any(
-            self.tool_state(name).state != "valid" for name in ("toolToTracker", "referenceToTracker")
+        """CutGuidance of the tracked tool while it and the reference body are tracked and a plan exists (not while a
+        registration with alarms waits for acceptance)."""
+        if (
+            self._cut is None
+            or self._pending is not None
+            or any(self.tool_state(name).state != "valid" for name in ("toolToTracker", "referenceToTracker"))
         ):
             return None
         try:

@@ -13,11 +13,12 @@ pivot recording, auto-collect, live readouts) lives in the controller, which obs
 """
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from ..core.coarse_checks import check_reference_frame
 from ..core.pivot import pivot_calibration
 from ..core.registration import DEFAULT_METHOD, register
 from ..core.robot import image_to_robot_base, robot_base_to_tracker
@@ -25,8 +26,9 @@ from ..core.surface_index import SurfaceIndex
 from ..core.transforms import apply_transform
 from ..image.ct_pipeline import process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
+from ..image.hounsfield import check_bone_threshold, check_hounsfield_units
 from ..image.volume_io import load_volume
-from ..io.marker_files import flagged_message, labelled_markers, marker_label, pair_markers
+from ..io.marker_files import flagged_message, labelled_markers, marker_label, pair_marker_sets
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 from ..io.point_files import write_points_atomic
 from . import mrml_nodes
@@ -117,7 +119,10 @@ class NavigationLogic:
         ``progress(step, done, total)`` is called between the steps; an exception it raises (a cancel) stops the
         run before any node is written. Nodes written by an earlier run are replaced.
         """
+        if not isinstance(threshold_hu, str):
+            check_bone_threshold(threshold_hu)  # a fraction or a soft-tissue threshold, before any work
         volume = load_volume(volume_node)
+        check_hounsfield_units(volume.voxels, threshold_hu)
         image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress)
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         parameters = self.parameters
@@ -212,18 +217,32 @@ class NavigationLogic:
         scale=None,
         policy=None,
     ):
-        """Register and write the results into the scene.
+        """Register and write the results into the scene, ReferenceToImage only when the result has no alarms
+        (``apply_registration`` writes it for one the user accepted).
 
-        Probe points whose 'include' cell in the residual table is off are left out. Writes the
-        ``ReferenceToImage`` transform, the ``RegistrationResiduals`` table, the ``RegistrationSweep`` plot and the
-        figures into the parameter node. Raises ValueError/TypeError with what to do.
+        Probe points whose 'include' cell in the residual table is off are left out. Probe points far from the bone
+        after the CR are left out too (``core.coarse_checks``), their 'include' cell turned off and their 'note'
+        saying so, unless the user turned 'include' back on for such a point: it is then used. The markers are
+        paired by their numbers, checked by their distances (``pair_marker_sets``). Writes the
+        ``RegistrationResiduals`` table, the ``RegistrationSweep`` plot and the figures into the parameter node.
+        Raises ValueError/TypeError with what to do.
         """
         ipc = points_of(ipc_node, "IPC model")
         ppc_all = points_of(ppc_node, "probe points")
         include = self._included(len(ppc_all))
+        rows = np.flatnonzero(include)
+        hand_included = self._far_included(len(ppc_all))  # far after an earlier CR, included again by the user
+        include_far = [position for position, row in enumerate(rows) if hand_included[row]]
         if include.sum() < 3:
             raise ValueError(f"only {include.sum()} probe points are included; include or collect at least 3")
-        markers_image, markers_patient = _paired_markers(markers_image_node, markers_patient_node)
+        markers_image, markers_patient, pairing_warnings = _paired_markers(markers_image_node, markers_patient_node)
+        check_reference_frame(ppc_all[include], "probe points")
+        check_reference_frame(
+            markers_patient,
+            "marker centres (patient)",
+            tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
+            "the reference body",
+        )
         if min(len(markers_image), len(markers_patient)) < 3:
             raise ValueError(
                 "the coarse registration needs at least 3 marker centres in both the image and the "
@@ -246,15 +265,26 @@ class NavigationLogic:
             sweep=sweep and method == "cr-ramsicp",
             scale=scale if method == "cr-ramsicp" else None,
             policy=policy,
+            include_far=include_far,
         )
+        if pairing_warnings:
+            result = replace(
+                result, warnings=tuple(result.alarms) + pairing_warnings + result.warnings[len(result.alarms) :]
+            )
         parameters = self.parameters
-        reference_to_image = parameters.referenceToImage or self.transform_node("ReferenceToImage")
-        set_matrix(reference_to_image, result.reference_to_image)
-        parameters.referenceToImage = reference_to_image
+        if not result.alarms:  # a result with alarms is applied only when the user accepts it (the controller)
+            self.apply_registration(result)
         parameters.probePoints = ppc_node
         residuals = np.full(len(ppc_all), np.nan)
         residuals[include] = result.residuals_mm
+        notes = self._notes() if len(self._notes()) == len(ppc_all) else [""] * len(ppc_all)
+        for row in rows:  # a point left out by the user keeps its note; the others get this registration's
+            notes[row] = ""
+        for position in result.far_points:
+            notes[rows[position]] = f"far from the bone after the CR: {result.coarse_distances_mm[position]:.1f} mm"
+        include[rows[list(result.left_out)]] = False
         self._write_residual_table(ppc_node, ppc_all, residuals, include)
+        self._write_notes(notes)
         if result.sweep:
             self._write_sweep_plot(result)
         for key, value in (
@@ -268,6 +298,45 @@ class NavigationLogic:
         ):  # the result's figures, saved with the scene
             parameters.node.SetParameter(key, "" if value is None else str(value))
         return result
+
+    def apply_registration(self, result):
+        """Write ``result.reference_to_image`` into ReferenceToImage (created when missing): navigation uses it."""
+        parameters = self.parameters
+        reference_to_image = parameters.referenceToImage or self.transform_node("ReferenceToImage")
+        set_matrix(reference_to_image, result.reference_to_image)
+        parameters.referenceToImage = reference_to_image
+
+    def far_points(self):
+        """Probe points (numbered from 1) that lay far from the bone after the last registration's CR."""
+        notes = self._notes()
+        return [row + 1 for row, note in enumerate(notes) if note.startswith("far")]
+
+    def _notes(self):
+        table = self.parameters.residualTable
+        column = None if table is None else table.GetTable().GetColumnByName("note")
+        if column is None:
+            return []
+        return [str(column.GetValue(row)) for row in range(column.GetNumberOfTuples())]
+
+    def _far_included(self, count):
+        """(count,) booleans: points the last registration found far whose 'include' the user turned back on."""
+        notes, include = self._notes(), self._included(count)
+        if len(notes) != count:
+            return np.zeros(count, dtype=bool)
+        return np.array([note.startswith("far") for note in notes]) & include
+
+    def _write_notes(self, notes):
+        """The residual table's 'note' column: why a point is flagged ('' for none)."""
+        from vtkmodules.vtkCommonCore import vtkStringArray
+
+        column = vtkStringArray()
+        column.SetName("note")
+        for note in notes:
+            column.InsertNextValue(note)
+        table = self.parameters.residualTable.GetTable()
+        table.RemoveColumnByName("note")
+        table.AddColumn(column)
+        table.Modified()
 
     def _index(self, ipc_node, ipc):
         """The KD-tree of the IPC, rebuilt only when the IPC model changed."""
@@ -464,9 +533,11 @@ def _give_a_cache_directory(scene):
 
 
 def _paired_markers(markers_image_node, markers_patient_node):
-    """Image and patient marker centres paired as ``ramsicp register`` pairs them: by their ``M<n>`` labels when
-    the image side numbers its markers (so a deleted marker leaves the others paired right), else row by row.
-    Markers flagged partial or deformed in the CT are refused: their centres may be off."""
+    """Image and patient marker centres paired as ``ramsicp register`` pairs them (``pair_marker_sets``): by their
+    ``M<n>`` labels when the image side numbers its markers (so a deleted marker leaves the others paired right),
+    else row by row, checked by the markers' distances (another order is re-paired and said). Markers flagged
+    partial or deformed in the CT are refused: their centres may be off. Returns (image (K, 3), patient (K, 3),
+    warnings)."""
     sets = []
     for node, name in (
         (markers_image_node, "marker centres (image)"),
@@ -476,13 +547,18 @@ def _paired_markers(markers_image_node, markers_patient_node):
         labels = [node.GetNthControlPointLabel(i) for i in range(len(points))] if node.IsA("vtkMRMLMarkupsNode") else []
         sets.append(labelled_markers(points, labels or [""] * len(points), node.GetName()))
     image, patient = sets
+    if min(len(image.points), len(patient.points)) < 3:
+        raise ValueError(
+            "the coarse registration needs at least 3 marker centres in both the image and the "
+            "patient; detect or place the missing ones"
+        )
     if image.flagged():
         raise ValueError(
             f"{flagged_message(image)} in the CT, so its centre may be off: drag it onto the sphere's centre and "
             "rename it 'M<n> ok', or delete it (three markers are enough)"
         )
-    markers_image, markers_patient, _ = pair_markers(image, patient)
-    return markers_image, markers_patient
+    pairing = pair_marker_sets(image, patient)
+    return pairing.image, pairing.patient, tuple(pairing.warnings)
 
 
 def _storable_nodes(scene):

@@ -7,10 +7,10 @@ VTK is told to render through EGL before its first window, which avoids its "bad
 """
 
 import os
-from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic_files import atomic_path
 from ..io.file_checks import check_output_file
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from ..io.vtk_arrays import poly_data
@@ -110,12 +110,13 @@ def write_png(path, renderer, size):
     grabber.SetInput(window)
     grabber.Update()
     writer = vtkPNGWriter()
-    writer.SetFileName(str(path))
-    writer.SetInputConnection(grabber.GetOutputPort())
-    writer.Write()
-    window.Finalize()
-    if writer.GetErrorCode() or not Path(path).is_file() or Path(path).stat().st_size == 0:
-        raise OSError(f"{path}: writing the PNG failed")
+    with atomic_path(path) as temporary:  # whole or not at all
+        writer.SetFileName(str(temporary))
+        writer.SetInputConnection(grabber.GetOutputPort())
+        writer.Write()
+        window.Finalize()
+        if writer.GetErrorCode() or not temporary.is_file() or temporary.stat().st_size == 0:
+            raise OSError(f"{path}: writing the PNG failed")
 
 
 def _frame(camera, points, view_direction, size, margin_mm=25.0):

@@ -28,6 +28,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from ..image.volume_io import CTVolume
+from ..io.atomic_files import atomic_folder, write_json_atomic
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from ..io.vtk_arrays import poly_data, triangle_arrays
 from .ct_painting import (
@@ -258,7 +259,6 @@ def write_phantom(directory, volume, truth):
       centres), tagged LPS as Slicer writes models;
     * ``marker_centres.mrk.json``: the true marker centres as Slicer markups (M1 to M4, LPS in the file).
     """
-    import json
     from pathlib import Path
 
     from ..image.volume_io import save_nrrd
@@ -268,24 +268,26 @@ def write_phantom(directory, volume, truth):
 
     directory = Path(directory)
     check_output_folder(directory, "phantom folder")
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "ct": directory / "ct.nrrd",
-        "truth": directory / "truth.json",
-        "bone_surface": directory / "bone_surface.vtp",
-        "marker_centres": directory / "marker_centres.mrk.json",
-    }
-    save_nrrd(paths["ct"], volume)
-    surface_vertices, surface_triangles = clip_to_field_of_view(truth.bone_vertices, truth.bone_triangles, volume)
-    write_surface(paths["bone_surface"], surface_vertices, surface_triangles)
-    write_points(
-        paths["marker_centres"], truth.marker_centres, labels=[f"M{n + 1}" for n in range(len(truth.marker_centres))]
-    )
-    files = {name: {"file": path.name, "frame": FILE_FRAMES[name]} for name, path in paths.items()}
-    files["bone_surface"]["extent"] = "cut to the CT's field of view (the box of its voxel centres)"
-    document = {**truth.to_dict(), "files": files}
-    paths["truth"].write_text(json.dumps(document, indent=2), encoding="utf-8")
-    return paths
+    with atomic_folder(directory) as folder:  # all the files or none of them
+        paths = {
+            "ct": folder / "ct.nrrd",
+            "truth": folder / "truth.json",
+            "bone_surface": folder / "bone_surface.vtp",
+            "marker_centres": folder / "marker_centres.mrk.json",
+        }
+        save_nrrd(paths["ct"], volume)
+        surface_vertices, surface_triangles = clip_to_field_of_view(truth.bone_vertices, truth.bone_triangles, volume)
+        write_surface(paths["bone_surface"], surface_vertices, surface_triangles)
+        write_points(
+            paths["marker_centres"],
+            truth.marker_centres,
+            labels=[f"M{n + 1}" for n in range(len(truth.marker_centres))],
+        )
+        files = {name: {"file": path.name, "frame": FILE_FRAMES[name]} for name, path in paths.items()}
+        files["bone_surface"]["extent"] = "cut to the CT's field of view (the box of its voxel centres)"
+        document = {**truth.to_dict(), "files": files}
+        write_json_atomic(paths["truth"], document)
+    return {name: directory / path.name for name, path in paths.items()}
 
 
 def clip_to_field_of_view(vertices, triangles, volume):

@@ -255,7 +255,7 @@ class NavigationWebApp:
             return
         if event == "pivot" and data is not None:
             update_needle(self.scene, parameters.probeTipToProbe)
-        elif event == "registered":
+        elif event in ("registered", "accepted"):
             update_residual_points(self.scene, parameters.residualTable, parameters.referenceToImage)
             move_needle(self.scene, parameters.probeTipToProbe)
             self._tip_moved = True

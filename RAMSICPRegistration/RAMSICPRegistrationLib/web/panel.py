@@ -183,13 +183,25 @@ def _register_section(app):
         with html.Div(v_if="registered", classes="text-body-2"):
             html.Div("FRE <b id='fre'>{{ fre }}</b> mm, TRE <b id='tre'>{{ tre || '-' }}</b> mm")
             html.Div("probe points {{ ppc_rms }} mm RMS from the bone<span v-if='scale'>, L = {{ scale }}</span>")
+        with v3.VAlert(v_if="alarms.length", type="error", density="compact", classes="my-1", id="alarms"):
+            html.Div(
+                "ALARM: this registration is not used for navigation until you accept it.", classes="font-weight-bold"
+            )
+            html.Div("{{ alarm }}", v_for="alarm in alarms", classes="text-body-2 my-1")
+            _action_button(app, "Accept registration", "accept_registration", "mdi-alert")
+        with v3.VAlert(v_if="warnings.length", type="warning", density="compact", classes="my-1", id="warnings"):
+            html.Div("{{ warning }}", v_for="warning in warnings", classes="text-body-2 my-1")
         html.Div(v_html=("sweep_svg",), id="sweep", classes="my-1")
         with v3.VTable(v_if="residuals.length", density="compact", height=220, fixed_header=True, id="residuals"):
             with html.Thead(), html.Tr():
                 html.Th("point")
                 html.Th("residual (mm)")
                 html.Th("include")
-            with html.Tbody(), html.Tr(v_for="row in residuals", key="row.index"):
+                html.Th("note")
+            with (
+                html.Tbody(),
+                html.Tr(v_for="row in residuals", key="row.index", classes=("row.note ? 'text-error far-point' : ''",)),
+            ):
                 html.Td("{{ row.label }}")
                 html.Td("{{ row.residual }}")
                 with html.Td():
@@ -199,6 +211,7 @@ def _register_section(app):
                         density="compact",
                         hide_details=True,
                     )
+                html.Td("{{ row.note }}")
 
 
 def _cut_section(app):

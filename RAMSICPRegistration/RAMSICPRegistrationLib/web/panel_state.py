@@ -42,17 +42,20 @@ def tool_rows(bridge_status, navigation_status):
 
 
 def residual_rows(table_node):
-    """One row per probe point of the residual table: index (0-based), label, residual (mm text), include."""
+    """One row per probe point of the residual table: index (0-based), label, residual (mm text), include, and the
+    note of a point flagged by the registration (far from the bone after the CR), '' for the others."""
     if table_node is None or table_node.GetTable() is None:
         return []
     _, residuals, included = residual_points(table_node)
     labels = table_node.GetTable().GetColumnByName("point")
+    notes = table_node.GetTable().GetColumnByName("note")
     return [
         {
             "index": row,
             "label": labels.GetValue(row),
             "residual": "" if residual != residual else millimetres(residual),  # NaN: left out of the last run
             "include": bool(include),
+            "note": "" if notes is None or row >= notes.GetNumberOfValues() else str(notes.GetValue(row)),
         }
         for row, (residual, include) in enumerate(zip(residuals, included))
     ]
@@ -106,6 +109,8 @@ def panel_state(controller, bridge_status):
         "ppc_rms": "" if result is None else millimetres(result.ppc_rms_mm),
         "scale": "" if result is None or result.scale is None else f"{result.scale:g}",
         "residuals": residual_rows(parameters.residualTable),
+        "alarms": list(status.alarms),  # a registration not applied until accepted: shown in red, with its button
+        "warnings": list(status.warnings),
         "sweep_svg": "" if result is None else result_sweep_svg(result),
         "tip_to_surface": millimetres(status.tip_to_surface_mm, 1),
         **guidance_state(status),
