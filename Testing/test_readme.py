@@ -80,3 +80,32 @@ def test_every_guide_the_readme_links_exists_and_the_readme_is_short():
     links = set(re.findall(r"\]\((Documentation/[^)#]+)", text))
     assert len(links) >= 10 and all((ROOT / link).is_file() for link in links), sorted(links)
     assert len(text.splitlines()) <= 250
+
+
+def _github_anchor(heading):
+    """The anchor GitHub gives a heading: lower case, punctuation but '-' and '_' dropped, spaces to '-'."""
+    text = re.sub(r"[`*]", "", heading.strip().lower())
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def _anchors(page):
+    text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+    return {_github_anchor(line.lstrip("#")) for line in text.splitlines() if line.startswith("#")}
+
+
+def test_every_link_between_the_pages_and_every_anchor_resolves():
+    pages = [README, *sorted((ROOT / "Documentation").glob("*.md"))]
+    broken = []
+    for page in pages:
+        text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):
+                continue  # a web address
+            path, _, anchor = target.partition("#")
+            linked = (page.parent / path).resolve() if path else page
+            if not linked.exists():
+                broken.append(f"{page.name}: {target} (no such file)")
+            elif anchor and linked.suffix == ".md" and anchor not in _anchors(linked):
+                broken.append(f"{page.name}: {target} (no such heading)")
+    assert not broken, broken
+    assert _github_anchor("The tracker in Slicer's process") == "the-tracker-in-slicers-process"
