@@ -162,11 +162,11 @@ def check_pose_events_and_tip(controller, scene):
 
 def residual_table(scene, rows):
     """A residual table as ``NavigationLogic.register`` writes it: (label, x, y, z, residual, include) rows."""
-    from vtkmodules.vtkCommonCore import vtkDoubleArray, vtkIntArray, vtkStringArray
+    from vtkmodules.vtkCommonCore import vtkBitArray, vtkDoubleArray, vtkStringArray
     from vtkmodules.vtkCommonDataModel import vtkTable
 
     table = vtkTable()
-    columns = [vtkStringArray()] + [vtkDoubleArray() for _ in range(4)] + [vtkIntArray()]
+    columns = [vtkStringArray()] + [vtkDoubleArray() for _ in range(4)] + [vtkBitArray()]
     for array, name in zip(columns, ("point", "x", "y", "z", "residual_mm", "include")):
         array.SetName(name)
         table.AddColumn(array)
