@@ -12,7 +12,7 @@ against their sources by ``Testing/test_module_files.py``).
 """
 
 import os
-from typing import Annotated
+from typing import Annotated, Union
 
 import qt
 import slicer
@@ -123,6 +123,9 @@ class RAMSICPRegistrationParameterNode:
     autoCollectDistanceMm: Annotated[float, WithinRange(0.5, 50.0)] = 5.0
     holdStillMm: Annotated[float, WithinRange(0.2, 10.0)] = DEFAULT_STILL_MM
     holdStillS: Annotated[float, WithinRange(0.05, 5.0)] = DEFAULT_STILL_S
+    reachableSurface: Union[vtkMRMLModelNode, vtkMRMLMarkupsFiducialNode]
+    targetTreMm: Annotated[float, WithinRange(0.05, 10.0)] = 1.0
+    nextTouch: vtkMRMLMarkupsFiducialNode
     method: Annotated[str, Choice(list(METHODS))] = DEFAULT_METHOD
     policy: Annotated[str, Choice(list(POLICIES))] = "rms-plateau"
     referenceToImage: vtkMRMLLinearTransformNode
@@ -130,6 +133,8 @@ class RAMSICPRegistrationParameterNode:
     sweepChart: vtkMRMLPlotChartNode
     targetsImage: vtkMRMLMarkupsFiducialNode
     targetsPatient: vtkMRMLMarkupsFiducialNode
+    checkpoints: vtkMRMLMarkupsFiducialNode
+    checkpointLimitMm: Annotated[float, WithinRange(0.1, 5.0)] = 0.6
     robotPositions: vtkMRMLMarkupsFiducialNode
     trackerPositions: vtkMRMLMarkupsFiducialNode
     robotBaseToTracker: vtkMRMLLinearTransformNode
