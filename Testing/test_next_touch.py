@@ -3,6 +3,8 @@ the plan's targets, drawn on the bone, and followed by guided collection, played
 surgeon, touching the bone where the drawn point is, with a hand's tremor, while the tracker streams 60 Hz poses
 into a real slicer-core scene; the controller registers after each touch until it says enough."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -178,11 +180,14 @@ def test_guided_collection_leaves_out_a_touch_away_from_the_drawn_point(tibia_pa
     controller.run("register")
     controller.run("set_guided_collect", True)
     suggested = np.array(controller.status().next_touch.position_image)
-    far = tibia_patient.touch(rng, suggested + (0.0, 0.0, 30.0), probe_noise_mm=0.0)[0]  # 30 mm along the bone
+    far = tibia_patient.touch(rng, suggested + (0.0, 0.0, 30.0), probe_noise_mm=0.0)[0]  # up the bone, on it
+    away = np.linalg.norm(apply_transform(controller.last_result.reference_to_image, far[None])[0] - suggested)
+    assert away > 6.0  # beyond the 5 mm a guided touch may lie from the drawn point
     surgeon.touch(far)
     status = controller.status()
     assert status.probe_points == 4 and status.guided_collect and status.message_is_error
-    assert status.message.startswith("not collected: that touch was 3") and "touch the drawn point" in status.message
+    said = re.match(r"not collected: that touch was (\d+\.\d) mm from the point drawn", status.message)
+    assert said and float(said.group(1)) == pytest.approx(away, abs=0.1) and "touch the drawn point" in status.message
     surgeon.touch(tibia_patient.touch(rng, suggested)[0])
     assert controller.status().probe_points == 5 and controller.last_result.residuals_mm.shape == (5,)
     controller.run("set_guided_collect", False)

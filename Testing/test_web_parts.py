@@ -500,3 +500,32 @@ def test_the_slices_follow_the_tip_on_the_cts_voxel_planes_and_stay_while_it_mov
     ct.SetAndObserveTransformNodeID(transform.GetID())
     follow_tip(scene, (10.3, 20.5, 31.0), ct)  # a CT under a transform: exactly through the tip
     np.testing.assert_allclose(np.diag(slice_origins((sagittal, coronal, axial))), (10.3, 20.5, 31.0), atol=1e-9)
+
+
+# -- the server log ------------------------------------------------------------------------------------------------
+@needs_slicer
+def test_only_the_known_vtk_deprecation_warning_is_kept_out_of_the_log(capfd, caplog):
+    """VTK 9.6 warns when a WindowResizeEvent observer is added to an interactor (trame-slicer's slice views do):
+    within ``views_created_quietly`` that warning, and no other, is dropped; afterwards VTK reports as usual."""
+    import vtkmodules.vtkInteractionStyle  # noqa: F401 (the interactor's default style)
+    import vtkmodules.vtkRenderingOpenGL2  # noqa: F401 (the platform's interactor class)
+    from trame_slicer.views import abstract_view
+    from vtkmodules.vtkCommonCore import vtkCommand
+
+    from RAMSICPRegistrationLib.web.vtk_warnings import KNOWN_WARNING, views_created_quietly
+
+    original = abstract_view.vtkRenderWindowInteractor
+    bare = original()
+    bare.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+    assert KNOWN_WARNING in capfd.readouterr().err  # the warning this is about, as VTK prints it
+    with caplog.at_level("WARNING"), views_created_quietly() as watched:
+        interactor = abstract_view.vtkRenderWindowInteractor()  # as trame-slicer's views create theirs
+        interactor.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+        interactor.InvokeEvent(vtkCommand.WarningEvent, "another warning")
+    err = capfd.readouterr().err
+    assert KNOWN_WARNING not in err and KNOWN_WARNING not in caplog.text
+    assert [record.getMessage() for record in caplog.records] == ["VTK: another warning"]
+    assert [created for created, _ in watched] == [interactor] and interactor.IsA("vtkRenderWindowInteractor")
+    assert abstract_view.vtkRenderWindowInteractor is original and not interactor.HasObserver(vtkCommand.WarningEvent)
+    interactor.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+    assert KNOWN_WARNING in capfd.readouterr().err  # after the views exist, warnings are VTK's again

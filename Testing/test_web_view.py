@@ -79,11 +79,23 @@ class Session(NavigationPage):
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    session = Session(tmp_path_factory.mktemp("web_view"))
+    folder = tmp_path_factory.mktemp("web_view")
+    saved_cache = os.environ.get("RAMSICP_CACHE_DIR")
+    os.environ["RAMSICP_CACHE_DIR"] = str(folder / "cache")  # the demo phantom built here, not in the user's cache
+    try:
+        session = Session(folder)
+    finally:
+        if saved_cache is None:
+            os.environ.pop("RAMSICP_CACHE_DIR")
+        else:
+            os.environ["RAMSICP_CACHE_DIR"] = saved_cache
     try:
         yield session
     finally:
         code = session.close()
+        log = session.log.read_text()
+        assert "deprecat" not in log.lower() and "will not be generated" not in log, log[-3000:]
+        assert list((folder / "cache").glob("ct-phantom-*.npz")), "the demo phantom was not cached"
         # trame's client asks POST /paraview/ for a session launcher this single-user server does not have (405).
         errors = [error for error in session.page_errors if "405 (Method Not Allowed)" not in error]
         assert not errors, f"the page reported errors: {errors}"

@@ -800,11 +800,9 @@ class NavigationController:
         point drawn on the bone is collected, the patient registered again at once and the next touch moved on; a
         touch elsewhere is not collected. It stops by itself when the touches are enough (every target's 95 % bound
         below ``targetTreMm``), when a registration raises an alarm, or when hold-still collection is turned off."""
-        if not enabled:
+        if not enabled:  # and the hold-still collection it turned on
             if self._guided:
-                self._guided = False
-                self._notify("guided-collect", False)
-                self._say("guided collection off")
+                self._stop_guided("guided collection off")
             return
         self._require("set_guided_collect")
         self.set_hold_still_collect(True)

@@ -40,6 +40,7 @@ from .scene_display import (
     update_needle,
     update_residual_points,
 )
+from .vtk_warnings import views_created_quietly
 
 logger = logging.getLogger(__name__)
 
@@ -161,7 +162,9 @@ class NavigationWebApp:
                 factory(self.server, populate_view_ui_f=gutter, target_fps=fps, blur_fps=None)
             )
         self.layout = LayoutManager(self.scene, self.slicer.view_manager, self.server)
-        self.layout.register_layout(LAYOUT_ID, navigation_layout())
+        with views_created_quietly():  # the slice views' VTK 9.6 deprecation warning, and only it
+            self.layout.register_layout(LAYOUT_ID, navigation_layout())  # creates the views
+            self.layout.create_layout_views_if_needed(LAYOUT_ID)
         self.layout.set_layout(LAYOUT_ID)
         for view in self.slicer.view_manager.get_views():
             view.render_window().SetMultiSamples(0)  # 8x multisampling costs 10x on software GL
@@ -211,9 +214,10 @@ class NavigationWebApp:
     def add_demo_patient(self):
         """The demo patient: its CT phantom processed into the IPC and marker centres, the reference body's
         marker centres, and the four osteotomy targets in both frames (so the page shows a TRE)."""
-        from ..navigation.scenarios import make_patient_and_ct
+        from ..navigation.scenarios import cached_patient_and_ct
 
-        patient, volume, _ = make_patient_and_ct()
+        patient, volume, built = cached_patient_and_ct()  # built once, then read from the user's cache (< 1 s)
+        logger.info("demo CT phantom %s", "built and cached" if built else "read from the cache")
         parameters = self.controller.parameters
         parameters.ctVolume = mrml_nodes.volume_node(self.scene, volume, "CT")
         image = self.controller.process_ct()
