@@ -313,6 +313,37 @@ class NavigationWebApp:
             self.scene, self.controller.parameters.residualTable, self.controller.parameters.referenceToImage
         )
 
+    def set_target_tre(self, value):
+        """The error the plan allows at its targets (mm), typed on the page: 'enough' is judged against it."""
+        try:
+            self.controller.parameters.targetTreMm = float(value)
+        except (TypeError, ValueError) as error:  # an empty or out-of-range field: the old limit stays
+            logger.info("target TRE %r not taken: %s", value, error)
+        self.refresh_panel()
+
+    def place_plane(self, level_mm, tilt_anterior_deg, tilt_side_deg, entry_deg):
+        """Place the osteotomy plane from the page's fields (an empty field keeps the plane's value)."""
+        values = [None if value in (None, "") else value for value in (level_mm, tilt_anterior_deg, tilt_side_deg)]
+        self.run("place_osteotomy_plane", *values, None if entry_deg in (None, "") else entry_deg)
+        self._show_plane_inputs()
+
+    def place_plane_at_tip(self):
+        self.run("place_plane_at_tip")
+        self._show_plane_inputs()
+
+    def _show_plane_inputs(self):
+        """The page's plane fields show the placement the controller made."""
+        placement = self.controller.status().plane_placement
+        if placement is None:
+            return
+        with self.server.state:
+            self.server.state.update(
+                plane_level=round(placement.level_mm, 1) + 0.0,  # + 0.0: never '-0'
+                plane_tilt_anterior=round(placement.tilt_anterior_deg, 1) + 0.0,
+                plane_tilt_side=round(placement.tilt_side_deg, 1) + 0.0,
+                plane_entry=round(placement.entry_deg) % 360,
+            )
+
     def set_choice(self, name, value):
         """The method or policy chosen on the page, written into the parameter node."""
         try:
@@ -331,6 +362,8 @@ class NavigationWebApp:
 
         self.server.state.update(panel_state(self.controller, self.bridge.status()))
         self.server.state.busy = ""
+        self.server.state.update(plane_level="", plane_tilt_anterior="", plane_tilt_side="", plane_entry="")
+        self._show_plane_inputs()  # a scene's plane: its placement in the fields
         self.server.state.trame__title = "RAMSICP Navigator"
         build_page(self)
 
