@@ -218,3 +218,83 @@ def test_no_next_touch_while_a_registration_waits_for_acceptance_or_without_targ
     index = SurfaceIndex(tibia_patient.ipc)
     assert index.nearest(np.array([controller.status().next_touch.position_image]))[0][0] < 1e-9  # on the IPC
     controller.close()
+
+
+def test_guided_collection_over_a_real_openigtlink_tracker_follows_the_suggestions(tibia_patient, reachable):
+    """End to end through the tracker chain the shells use: a simulated Vega (NDI protocol) -> our NDI driver ->
+    our PLUS-compatible OpenIGTLink server -> the bridge's receiver -> transform nodes -> the controller. The test's
+    hand holds the probe on the bone where the orange point is drawn, then lifts it; the controller collects only
+    such touches, registers after each, and stops at 'enough'; the predicted error at the targets falls."""
+    import time
+
+    from OpenIGTLinkBridgeLib.bridge_controller import BridgeController
+    from OpenIGTLinkBridgeLib.live_scenario import PROBE_TIP_MM, HandHeldProbe, serve_hand_held_probe
+
+    rng = np.random.default_rng(11)
+    scene = headless_scene()
+    probe = HandHeldProbe()
+    simulator, server = serve_hand_held_probe(probe)
+    bridge = BridgeController(scene)
+    controller = NavigationController(scene)
+    try:
+        parameters = controller.parameters
+        parameters.probeToReference = controller.steps.transform_node("ProbeToReference")  # the receiver's names
+        parameters.referenceToTracker = controller.steps.transform_node("ReferenceToTracker")
+        tip = controller.steps.transform_node("ProbeTipToProbe")
+        set_matrix(tip, make_transform(translation=PROBE_TIP_MM))  # the pivot's result
+        parameters.probeTipToProbe = tip
+        trial = tibia_patient.simulate_trial(rng, marker_fle_mm=1.0)
+        _patient_case(scene, parameters, tibia_patient, trial, reachable)
+        parameters.targetTreMm = 0.5
+        bridge.connect("127.0.0.1", server.address[1])
+
+        def run_tracker(seconds):
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                bridge.poll()
+                time.sleep(0.002)
+
+        def touch(point):
+            """Hold the tip on ``point`` (reference mm) for 0.6 s, then lift it away, moving (no hold in the air)."""
+            probe.touch(point)
+            run_tracker(0.6)
+            lifted = np.asarray(point) + (0.0, 20.0, 20.0)
+            probe.slide(lifted, lifted + (0.0, 30.0, 30.0), period_s=0.8)
+            run_tracker(0.3)
+
+        run_tracker(1.0)
+        assert controller.tool_state("probeToReference").state == "valid", bridge.status().connection
+        controller.run("set_hold_still_collect", True)
+        for point in tibia_patient.random_touches(rng, 3):
+            touch(point)
+        assert controller.status().probe_points == 3, controller.status().message
+        controller.run("register")
+        run_tracker(0.3)  # the shell reads the tracker on: the probe is current again after the registration
+        assert controller.run("set_guided_collect", True) is None, controller.status().message
+        assert controller.status().guided_collect
+        predicted = [controller.status().next_touch.predicted_tre_mm]
+        promised = []
+        while controller.status().guided_collect:
+            assert len(promised) < 20, "guided collection did not reach enough in 20 touches"
+            shown = controller.status().next_touch
+            promised.append(shown.predicted_tre_after_mm)
+            touch(tibia_patient.touch(rng, np.array(shown.position_image))[0])
+            assert len(controller.last_result.residuals_mm) == 3 + len(promised), controller.status().message
+            touched = np.array(parameters.probePoints.GetNthControlPointPosition(2 + len(promised)))
+            registered = apply_transform(controller.last_result.reference_to_image, touched[None])[0]
+            assert np.linalg.norm(registered - shown.position_image) < 5.0  # where it was drawn
+            predicted.append(controller.last_result.predicted_tre_rms_mm)
+        status = controller.status()
+        print(f"predicted error at the targets after each registration (mm): {np.round(predicted, 3).tolist()}")
+        print(f"promised by each suggestion (mm): {np.round(promised, 3).tolist()}")
+        assert status.message.startswith("ENOUGH after") and status.next_touch.enough, status.message
+        assert not status.hold_still_collect and status.probe_points == 3 + len(promised)
+        assert predicted[-1] < 0.6 * predicted[0]
+        # each registration predicts what its suggestion promised (the rank-one update is the full model's answer)
+        np.testing.assert_allclose(predicted[1:], promised, rtol=0.15)
+        assert np.all(np.diff(predicted) < 0.05)  # each guided touch lowers it, or keeps it within noise
+    finally:
+        controller.close()
+        bridge.close()
+        server.stop()
+        simulator.stop()
