@@ -188,6 +188,7 @@ def test_slips_of_1_mm_always_alarm_and_retouches_without_a_slip_never_do(theatr
     theatre.reference_to_tracker = move @ theatre.reference_to_tracker
     theatre.hold(divot, tilt_deg=rng.uniform(0.0, 35.0))
     result = controller.run("check_checkpoint")
+    print(f"re-touch {quiet.distance_mm:.2f} mm; after the slip {result.distance_mm:.2f} mm (true {expected:.2f})")
     assert result.alarm and abs(result.distance_mm - expected) < 0.2, (result.distance_mm, expected)
 
 
