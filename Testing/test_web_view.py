@@ -294,6 +294,7 @@ def test_the_plan_the_next_touch_and_a_slipped_reference_body_from_the_page(sess
     again 0.2 mm off (quiet), then after a 1 mm slip of the reference body (the bone point now lies 1 mm away in
     reference coordinates): the alarm in red on the page and in the recorded session."""
     from RAMSICPRegistrationLib.io.session_log import LOG_NAME, read_session_log
+    from RAMSICPRegistrationLib.navigation.checkpoints import HOLD_S
 
     session.page.fill("#plane-level", "70")
     session.click("Place the plane")
@@ -315,19 +316,23 @@ def test_the_plan_the_next_touch_and_a_slipped_reference_body_from_the_page(sess
     session.page.fill("#target-tre", "5")  # a lenient limit: enough
     session.wait_for_text("#next-touch", "^ENOUGH touches")
 
+    def hold(point, tilt_deg=10.0):
+        """The tip held still on ``point``: a checkpoint is the mean tip over the last HOLD_S seconds of the hold."""
+        session.probe.touch(point, tilt_deg=tilt_deg)
+        session.wait_for_tip_at(point, tolerance_mm=0.05)
+        session.page.wait_for_timeout(1000 * (HOLD_S + 0.5))  # the hand rests there (the held window, and a margin)
+
     divot = session.points[7]
-    session.probe.touch(divot)
-    session.wait_for_tip_at(divot)
+    hold(divot)
     session.click("Store checkpoint")
     session.wait_for_text("#checkpoint-count", "^1$")
     direction = np.array([0.48, -0.6, 0.64]) / np.linalg.norm([0.48, -0.6, 0.64])
-    session.probe.touch(divot + 0.2 * direction, tilt_deg=25.0)  # touched again: 0.2 mm off, no slip
-    session.wait_for_tip_at(divot + 0.2 * direction, tolerance_mm=0.05)
+    hold(divot + 0.2 * direction, tilt_deg=25.0)  # touched again: 0.2 mm off, no slip
     session.click("Check checkpoint")
-    session.wait_for_text("#checkpoint-text", "^checkpoint C1: 0.2")
+    session.wait_for_text("#checkpoint-text", "^checkpoint C1: ")
+    assert session.numbers("#checkpoint-text")[0] == pytest.approx(0.2, abs=0.06), session.text("#checkpoint-text")
     assert session.page.locator("#checkpoint-alarm").count() == 0
-    session.probe.touch(divot + 1.0 * direction)  # the reference body slipped 1 mm: the bone point moved in it
-    session.wait_for_tip_at(divot + 1.0 * direction, tolerance_mm=0.05)
+    hold(divot + 1.0 * direction)  # the reference body slipped 1 mm: the bone point moved 1 mm in its frame
     session.click("Check checkpoint")
     session.wait_for_text("#checkpoint-alarm", "^ALARM: checkpoint C1 moved 1.0")
     assert session.text("#tip-to-surface") == "-"  # not navigated with a registration that no longer holds
