@@ -529,3 +529,33 @@ def test_only_the_known_vtk_deprecation_warning_is_kept_out_of_the_log(capfd, ca
     assert abstract_view.vtkRenderWindowInteractor is original and not interactor.HasObserver(vtkCommand.WarningEvent)
     interactor.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
     assert KNOWN_WARNING in capfd.readouterr().err  # after the views exist, warnings are VTK's again
+
+
+@needs_slicer
+def test_the_display_copy_is_read_back_from_the_cache_as_it_was_made(tmp_path, caplog):
+    """The IPC's display copy is made once per IPC (``ramsicp web --demo`` shows the same one at every start): read
+    back, its vertices, triangles, normals and deviation are those made; a damaged file is made again."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    from RAMSICPRegistrationLib.io.vtk_arrays import triangle_arrays
+    from RAMSICPRegistrationLib.web.scene_display import bone_display_surface, cached_display_copy, surface_deviation_mm
+
+    surface = sphere_surface(30.0, 120)
+    made, deviation = cached_display_copy(surface, directory=tmp_path)
+    direct = bone_display_surface(surface)
+    assert deviation == surface_deviation_mm(direct, surface)
+    (path,) = tmp_path.glob("display-copy-*.npz")
+    read, read_deviation = cached_display_copy(surface, directory=tmp_path)
+    assert read is not made and read_deviation == deviation
+    for mesh in (made, read):
+        for mine, theirs in zip(triangle_arrays(mesh), triangle_arrays(direct)):
+            np.testing.assert_array_equal(mine, theirs)
+        normals = vtk_to_numpy(mesh.GetPointData().GetNormals())
+        np.testing.assert_array_equal(normals, vtk_to_numpy(direct.GetPointData().GetNormals()))
+    other, _ = cached_display_copy(sphere_surface(30.0, 60), directory=tmp_path)  # another IPC, another copy
+    assert len(list(tmp_path.glob("display-copy-*.npz"))) == 2
+    path.write_bytes(path.read_bytes()[:1000])  # cut short
+    with caplog.at_level("WARNING"):
+        again, again_deviation = cached_display_copy(surface, directory=tmp_path)
+    assert "is damaged" in caplog.text and again_deviation == deviation
+    np.testing.assert_array_equal(triangle_arrays(again)[1], triangle_arrays(direct)[1])
