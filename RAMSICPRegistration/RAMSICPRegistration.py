@@ -12,7 +12,7 @@ against their sources by ``Testing/test_module_files.py``).
 """
 
 import os
-from typing import Annotated
+from typing import Annotated, Union
 
 import qt
 import slicer
@@ -54,6 +54,9 @@ BUTTON_ACTIONS = {
     "registerButton": "register",
     "acceptRegistrationButton": "accept_registration",
     "robotButton": "robot_calibration",
+    "storeCheckpointButton": "store_checkpoint",
+    "checkCheckpointButton": "check_checkpoint",
+    "placePlaneAtTipButton": "place_plane_at_tip",
     "planCutButton": "plan_cut",
     "sendPathButton": "send_tool_path",
     "stopRobotButton": "stop_robot",
@@ -66,7 +69,11 @@ ENABLED_BY = {
     "collectButton": "collect_point",
     "registerButton": "register",
     "acceptRegistrationButton": "accept_registration",
+    "storeCheckpointButton": "store_checkpoint",
+    "checkCheckpointButton": "check_checkpoint",
     "robotButton": "robot_calibration",
+    "placePlaneButton": "place_osteotomy_plane",
+    "placePlaneAtTipButton": "place_plane_at_tip",
     "planCutButton": "plan_cut",
     "savePlanButton": "save_plan",
     "sendPathButton": "send_tool_path",
@@ -79,6 +86,8 @@ ROBOT_SERVICE_INTERVAL_MS = 50
 #: 5.6-5.10 and in Windows', macOS' and GNOME's/KDE's own shortcuts (Ctrl+Space, the earlier choice, is Spotlight on
 #: macOS and switches the input method on Linux and Windows); checked by Testing/test_module_files.py.
 COLLECT_SHORTCUT = "Ctrl+Shift+C"
+ENOUGH_STYLE = "color: #ffffff; background-color: #2e7d32; font-weight: bold; padding: 4px"
+NEXT_TOUCH_STYLE = "color: #e65100; font-weight: bold"
 ON_PLAN_STYLE = "color: #ffffff; background-color: #2e7d32; font-size: 15px; font-weight: bold; padding: 4px"
 ALARM_STYLE = "color: #ffffff; background-color: #c62828; font-weight: bold; padding: 4px"
 OFF_PLAN_STYLE = "color: #ffffff; background-color: #c62828; font-size: 15px; font-weight: bold; padding: 4px"
@@ -123,6 +132,9 @@ class RAMSICPRegistrationParameterNode:
     autoCollectDistanceMm: Annotated[float, WithinRange(0.5, 50.0)] = 5.0
     holdStillMm: Annotated[float, WithinRange(0.2, 10.0)] = DEFAULT_STILL_MM
     holdStillS: Annotated[float, WithinRange(0.05, 5.0)] = DEFAULT_STILL_S
+    reachableSurface: Union[vtkMRMLModelNode, vtkMRMLMarkupsFiducialNode]
+    targetTreMm: Annotated[float, WithinRange(0.05, 10.0)] = 1.0
+    nextTouch: vtkMRMLMarkupsFiducialNode
     method: Annotated[str, Choice(list(METHODS))] = DEFAULT_METHOD
     policy: Annotated[str, Choice(list(POLICIES))] = "rms-plateau"
     referenceToImage: vtkMRMLLinearTransformNode
@@ -130,6 +142,8 @@ class RAMSICPRegistrationParameterNode:
     sweepChart: vtkMRMLPlotChartNode
     targetsImage: vtkMRMLMarkupsFiducialNode
     targetsPatient: vtkMRMLMarkupsFiducialNode
+    checkpoints: vtkMRMLMarkupsFiducialNode
+    checkpointLimitMm: Annotated[float, WithinRange(0.1, 5.0)] = 0.6
     robotPositions: vtkMRMLMarkupsFiducialNode
     trackerPositions: vtkMRMLMarkupsFiducialNode
     robotBaseToTracker: vtkMRMLLinearTransformNode
@@ -177,6 +191,8 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         self.ui.pivotButton.connect("toggled(bool)", self.onPivotToggled)
         self.ui.autoCollectCheckBox.connect("toggled(bool)", self.onAutoCollectToggled)
         self.ui.holdStillCheckBox.connect("toggled(bool)", self.onHoldStillToggled)
+        self.ui.guidedCollectCheckBox.connect("toggled(bool)", self.onGuidedCollectToggled)
+        self.ui.placePlaneButton.connect("clicked(bool)", self.onPlacePlane)
         self.ui.saveButton.connect("clicked(bool)", self.onSave)
         self.ui.savePlanButton.connect("clicked(bool)", self.onSavePlan)
         self._timer = qt.QTimer(self.parent)
@@ -280,6 +296,18 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
     def onHoldStillToggled(self, enabled):
         self.run("set_hold_still_collect", enabled)
 
+    def onGuidedCollectToggled(self, enabled):
+        self.run("set_guided_collect", enabled)
+
+    def onPlacePlane(self):
+        self.run(
+            "place_osteotomy_plane",
+            self.ui.planeLevelSpinBox.value,
+            self.ui.planeTiltAnteriorSpinBox.value,
+            self.ui.planeTiltSideSpinBox.value,
+            self.ui.planeEntrySpinBox.value,
+        )
+
     def onSave(self):
         """Save through the controller: Slicer's own writer for .mrml writes only the scene's XML (the points, the
         IPC, the segmentation and the residual table would be lost)."""
@@ -356,9 +384,46 @@ class RAMSICPRegistrationWidget(ScriptedLoadableModuleWidget, VTKObservationMixi
         )
         self.ui.alarmLabel.styleSheet = ALARM_STYLE if status.alarms else ""
         self.ui.acceptRegistrationButton.visible = bool(status.alarms)
+        self.showNextTouch(status, reasons)
+        self.showCheckpoints(status)
+        self.showPlanePlacement(status)
         table = self._parameterNode.residualTable
         if self.ui.residualTableView.mrmlTableNode() is not table:
             self.ui.residualTableView.setMRMLTableNode(table)
+
+    def showNextTouch(self, status, reasons):
+        """The next touch (drawn on the bone as the orange NextTouch point) in words, green once enough."""
+        touch = status.next_touch
+        self.ui.nextTouchLabel.text = status.next_touch_text
+        self.ui.nextTouchLabel.styleSheet = (
+            "" if touch is None else (ENOUGH_STYLE if touch.enough else NEXT_TOUCH_STYLE)
+        )
+        self.ui.guidedCollectCheckBox.enabled = status.guided_collect or reasons["set_guided_collect"] is None
+        self.ui.guidedCollectCheckBox.toolTip = "" if status.guided_collect else (reasons["set_guided_collect"] or "")
+        self._setCheckedQuietly(self.ui.guidedCollectCheckBox, status.guided_collect)
+
+    def showCheckpoints(self, status):
+        self.ui.checkpointLabel.text = _("{count} checkpoint(s) stored. {text}").format(
+            count=status.checkpoint_count, text=status.checkpoint_text
+        )
+        self.ui.checkpointAlarmLabel.text = status.checkpoint_alarm
+        self.ui.checkpointAlarmLabel.styleSheet = ALARM_STYLE if status.checkpoint_alarm else ""
+
+    def showPlanePlacement(self, status):
+        """The selected plane's placement in the bone's frame, in the spin boxes the user is not editing."""
+        placement = status.plane_placement
+        if placement is None:
+            return
+        for spinBox, value in (
+            (self.ui.planeLevelSpinBox, placement.level_mm),
+            (self.ui.planeTiltAnteriorSpinBox, placement.tilt_anterior_deg),
+            (self.ui.planeTiltSideSpinBox, placement.tilt_side_deg),
+            (self.ui.planeEntrySpinBox, round(placement.entry_deg) % 360),
+        ):
+            if not spinBox.hasFocus():
+                wasBlocked = spinBox.blockSignals(True)
+                spinBox.value = value
+                spinBox.blockSignals(wasBlocked)
 
     @staticmethod
     def _setCheckedQuietly(button, checked):

@@ -1,5 +1,12 @@
 """Shared fixtures: known transforms and analytic surfaces whose answers can be computed by hand."""
 
+import os
+import tempfile
+
+# What the product caches in the user's cache folder (the demo's CT phantom, the IPC's display copy) goes into a
+# fresh folder of this test run, for this process and the commands it starts: tests never read or fill the user's.
+os.environ["RAMSICP_CACHE_DIR"] = tempfile.mkdtemp(prefix="ramsicp-test-cache-")
+
 import contextlib
 
 import numpy as np

@@ -132,7 +132,9 @@ def test_the_widgets_parameter_node_declares_exactly_the_controllers_parameters(
         annotation, default = fields[parameter.name]
         value = None if default is None else known.get(default, None if default in known else ast.literal_eval(default))
         if parameter.kind == "node":
-            assert annotation == parameter.node_class and default is None, parameter.name
+            classes = parameter.node_class  # a tuple: any of them (parameterNodeWrapper's UnionSerializer)
+            expected = classes if isinstance(classes, str) else f"Union[{', '.join(classes)}]"
+            assert annotation == expected and default is None, parameter.name
             continue
         assert value == parameter.default, parameter.name
         if parameter.kind in ("float", "int"):

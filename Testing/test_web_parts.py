@@ -500,3 +500,62 @@ def test_the_slices_follow_the_tip_on_the_cts_voxel_planes_and_stay_while_it_mov
     ct.SetAndObserveTransformNodeID(transform.GetID())
     follow_tip(scene, (10.3, 20.5, 31.0), ct)  # a CT under a transform: exactly through the tip
     np.testing.assert_allclose(np.diag(slice_origins((sagittal, coronal, axial))), (10.3, 20.5, 31.0), atol=1e-9)
+
+
+# -- the server log ------------------------------------------------------------------------------------------------
+@needs_slicer
+def test_only_the_known_vtk_deprecation_warning_is_kept_out_of_the_log(capfd, caplog):
+    """VTK 9.6 warns when a WindowResizeEvent observer is added to an interactor (trame-slicer's slice views do):
+    within ``views_created_quietly`` that warning, and no other, is dropped; afterwards VTK reports as usual."""
+    import vtkmodules.vtkInteractionStyle  # noqa: F401 (the interactor's default style)
+    import vtkmodules.vtkRenderingOpenGL2  # noqa: F401 (the platform's interactor class)
+    from trame_slicer.views import abstract_view
+    from vtkmodules.vtkCommonCore import vtkCommand
+
+    from RAMSICPRegistrationLib.web.vtk_warnings import KNOWN_WARNING, views_created_quietly
+
+    original = abstract_view.vtkRenderWindowInteractor
+    bare = original()
+    bare.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+    assert KNOWN_WARNING in capfd.readouterr().err  # the warning this is about, as VTK prints it
+    with caplog.at_level("WARNING"), views_created_quietly() as watched:
+        interactor = abstract_view.vtkRenderWindowInteractor()  # as trame-slicer's views create theirs
+        interactor.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+        interactor.InvokeEvent(vtkCommand.WarningEvent, "another warning")
+    err = capfd.readouterr().err
+    assert KNOWN_WARNING not in err and KNOWN_WARNING not in caplog.text
+    assert [record.getMessage() for record in caplog.records] == ["VTK: another warning"]
+    assert [created for created, _ in watched] == [interactor] and interactor.IsA("vtkRenderWindowInteractor")
+    assert abstract_view.vtkRenderWindowInteractor is original and not interactor.HasObserver(vtkCommand.WarningEvent)
+    interactor.AddObserver(vtkCommand.WindowResizeEvent, lambda caller, event: None)
+    assert KNOWN_WARNING in capfd.readouterr().err  # after the views exist, warnings are VTK's again
+
+
+@needs_slicer
+def test_the_display_copy_is_read_back_from_the_cache_as_it_was_made(tmp_path, caplog):
+    """The IPC's display copy is made once per IPC (``ramsicp web --demo`` shows the same one at every start): read
+    back, its vertices, triangles, normals and deviation are those made; a damaged file is made again."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    from RAMSICPRegistrationLib.io.vtk_arrays import triangle_arrays
+    from RAMSICPRegistrationLib.web.scene_display import bone_display_surface, cached_display_copy, surface_deviation_mm
+
+    surface = sphere_surface(30.0, 120)
+    made, deviation = cached_display_copy(surface, directory=tmp_path)
+    direct = bone_display_surface(surface)
+    assert deviation == surface_deviation_mm(direct, surface)
+    (path,) = tmp_path.glob("display-copy-*.npz")
+    read, read_deviation = cached_display_copy(surface, directory=tmp_path)
+    assert read is not made and read_deviation == deviation
+    for mesh in (made, read):
+        for mine, theirs in zip(triangle_arrays(mesh), triangle_arrays(direct)):
+            np.testing.assert_array_equal(mine, theirs)
+        normals = vtk_to_numpy(mesh.GetPointData().GetNormals())
+        np.testing.assert_array_equal(normals, vtk_to_numpy(direct.GetPointData().GetNormals()))
+    other, _ = cached_display_copy(sphere_surface(30.0, 60), directory=tmp_path)  # another IPC, another copy
+    assert len(list(tmp_path.glob("display-copy-*.npz"))) == 2
+    path.write_bytes(path.read_bytes()[:1000])  # cut short
+    with caplog.at_level("WARNING"):
+        again, again_deviation = cached_display_copy(surface, directory=tmp_path)
+    assert "is damaged" in caplog.text and again_deviation == deviation
+    np.testing.assert_array_equal(triangle_arrays(again)[1], triangle_arrays(direct)[1])

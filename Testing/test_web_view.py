@@ -79,11 +79,23 @@ class Session(NavigationPage):
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    session = Session(tmp_path_factory.mktemp("web_view"))
+    folder = tmp_path_factory.mktemp("web_view")
+    saved_cache = os.environ.get("RAMSICP_CACHE_DIR")
+    os.environ["RAMSICP_CACHE_DIR"] = str(folder / "cache")  # the demo phantom built here, not in the user's cache
+    try:
+        session = Session(folder)
+    finally:
+        if saved_cache is None:
+            os.environ.pop("RAMSICP_CACHE_DIR")
+        else:
+            os.environ["RAMSICP_CACHE_DIR"] = saved_cache
     try:
         yield session
     finally:
         code = session.close()
+        log = session.log.read_text()
+        assert "deprecat" not in log.lower() and "will not be generated" not in log, log[-3000:]
+        assert list((folder / "cache").glob("ct-phantom-*.npz")), "the demo phantom was not cached"
         # trame's client asks POST /paraview/ for a session launcher this single-user server does not have (405).
         errors = [error for error in session.page_errors if "405 (Method Not Allowed)" not in error]
         assert not errors, f"the page reported errors: {errors}"
@@ -274,3 +286,57 @@ def test_a_touch_in_the_air_is_flagged_and_an_alarm_waits_for_acceptance(session
     session.wait_for_text("#message", "^registration accepted despite")
     assert session.page.locator("#alarms").count() == 0
     session.wait_for_text("#tip-to-surface", "mm$")
+
+
+def test_the_plan_the_next_touch_and_a_slipped_reference_body_from_the_page(session):
+    """Issue 26 on the page, after the registrations above: the osteotomy plane placed by numbers, the cut planned
+    (sending waits only for a robot); cr-fused's next touch with its predicted error; a checkpoint stored, touched
+    again 0.2 mm off (quiet), then after a 1 mm slip of the reference body (the bone point now lies 1 mm away in
+    reference coordinates): the alarm in red on the page and in the recorded session."""
+    from RAMSICPRegistrationLib.io.session_log import LOG_NAME, read_session_log
+    from RAMSICPRegistrationLib.navigation.checkpoints import HOLD_S
+
+    session.page.fill("#plane-level", "70")
+    session.click("Place the plane")
+    session.wait_for_text("#plane", "^plane: 70.0 mm below the top")
+    session.click("Plan the cut")
+    session.wait_for_text("#cut", "endpoints E1-E4")
+    send = session.button("Send the path to the robot")
+    assert send.is_disabled() and "robot" in send.get_attribute("title")
+
+    session.choose("method", "cr-fused")
+    session.click("Register")
+    session.page.wait_for_function("() => document.querySelector('#message').innerText.match(/^(ALARM|CR-FUSED)/)")
+    if session.page.locator("#alarms").count():  # the points in the air above: accepted, as the test above did
+        session.click("Accept registration")
+    session.page.fill("#target-tre", "0.05")  # a limit no registration here meets: the next touch is shown
+    session.wait_for_text("#next-touch", "^next touch: the orange point on the bone")
+    now, after = float(session.text("#next-touch-now")), float(session.text("#next-touch-after"))
+    assert 0.0 < after <= now, (now, after)  # one more touch never raises it (shown to 0.01 mm)
+    session.page.fill("#target-tre", "5")  # a lenient limit: enough
+    session.wait_for_text("#next-touch", "^ENOUGH touches")
+
+    def hold(point, tilt_deg=10.0):
+        """The tip held still on ``point``: a checkpoint is the mean tip over the last HOLD_S seconds of the hold."""
+        session.probe.touch(point, tilt_deg=tilt_deg)
+        session.wait_for_tip_at(point, tolerance_mm=0.05)
+        session.page.wait_for_timeout(1000 * (HOLD_S + 0.5))  # the hand rests there (the held window, and a margin)
+
+    divot = session.points[7]
+    hold(divot)
+    session.click("Store checkpoint")
+    session.wait_for_text("#checkpoint-count", "^1$")
+    direction = np.array([0.48, -0.6, 0.64]) / np.linalg.norm([0.48, -0.6, 0.64])
+    hold(divot + 0.2 * direction, tilt_deg=25.0)  # touched again: 0.2 mm off, no slip
+    session.click("Check checkpoint")
+    session.wait_for_text("#checkpoint-text", "^checkpoint C1: ")
+    assert session.numbers("#checkpoint-text")[0] == pytest.approx(0.2, abs=0.06), session.text("#checkpoint-text")
+    assert session.page.locator("#checkpoint-alarm").count() == 0
+    hold(divot + 1.0 * direction)  # the reference body slipped 1 mm: the bone point moved 1 mm in its frame
+    session.click("Check checkpoint")
+    session.wait_for_text("#checkpoint-alarm", "^ALARM: checkpoint C1 moved 1.0")
+    assert session.text("#tip-to-surface") == "-"  # not navigated with a registration that no longer holds
+    events = [event for event in read_session_log(session.output / LOG_NAME) if event["event"] == "checkpoint-checked"]
+    assert [event["alarm"] for event in events] == [False, True]
+    assert events[0]["distance_mm"] == pytest.approx(0.2, abs=0.06)
+    assert events[1]["distance_mm"] == pytest.approx(1.0, abs=0.06)

@@ -70,7 +70,7 @@ def run(arguments):
         app.load_scene(arguments.scene)
     app.start_workflow()
     if arguments.demo:
-        print("ramsicp web: building the demo patient's CT phantom and its IPC (about 30 s) ...", flush=True)
+        print("ramsicp web: the demo patient's CT phantom and its IPC (30-60 s the first time) ...", flush=True)
         app.add_demo_patient()
     if tracker is not None:
         app.connect_tracker(*tracker)

@@ -40,10 +40,13 @@ import numpy as np
 
 from ..core.guidance import cut_guidance
 from ..core.hold_still import HoldStillDetector
+from ..core.plane_placement import PlanePlacement, bone_frame, placed_plane, placement_of, placement_through
 from ..core.tool_path import plan_document
+from ..core.transforms import apply_transform
 from ..io.atomic_files import write_json_atomic
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
-from . import cutting
+from ..io.session_log import SessionLog
+from . import checkpoints, cutting, next_touch
 from .navigation import NavigationLogic, matrix_of, points_of
 from .parameters import Parameters, get_parameter_node
 
@@ -71,10 +74,15 @@ ACTIONS = (
     "collect_marker",
     "set_auto_collect",
     "set_hold_still_collect",
+    "set_guided_collect",
     "register",
     "accept_registration",
     "set_included",
+    "store_checkpoint",
+    "check_checkpoint",
     "robot_calibration",
+    "place_osteotomy_plane",
+    "place_plane_at_tip",
     "plan_cut",
     "save_plan",
     "send_tool_path",
@@ -134,6 +142,17 @@ class NavigationStatus:
     alarms: tuple = ()
     warnings: tuple = ()
     far_points: tuple = ()
+    # The next touch (issue 26): next_touch.NextTouch after a cr-fused registration with targets, and in words
+    # (why there is none, too); guided collection takes only touches near it.
+    next_touch: object = None
+    next_touch_text: str = ""
+    guided_collect: bool = False
+    # Checkpoints: how many are stored, the last store or check in words, and the alarm of a checkpoint that moved
+    # (the registration no longer holds: navigation readouts are withheld until a new registration).
+    checkpoint_count: int = 0
+    checkpoint_text: str = ""
+    checkpoint_alarm: str = ""
+    plane_placement: object = None  # core.plane_placement.PlanePlacement of the selected plane, if it has one
 
     def tool(self, label):
         return next(tool for tool in self.tools if tool.label == label)
@@ -198,6 +217,8 @@ class NavigationController:
         self._robot_answer = None  # (perf_counter when sent, timeout s, ToolPath) while the answer is awaited
         self._processing_ct = False
         self.steps = NavigationLogic(scene, autosave_directory)
+        self.session_log = SessionLog(autosave_directory)
+        self._tip_frames = checkpoints.TipFrames()
         self.clock, self.stale_after_s = clock, stale_after_s
         self.pose_time = pose_time
         self.last_result = None
@@ -206,6 +227,7 @@ class NavigationController:
         self._parameter_observation = None
         self._watches = {}  # parameter name -> _PoseWatch
         self._pose_tags = {}  # parameter name -> (node, tag)
+        self._registrations = 0  # registrations run: what the next touch was computed for
         self._reset_state()
         for event, callback in (
             (scene.StartCloseEvent, self._on_scene_start_close),
@@ -266,6 +288,15 @@ class NavigationController:
         self._message = ("", False)
         self._cut = None  # cutting.PlannedCut
         self._pending = None  # a registration with alarms, not applied until accepted
+        self._guided = False  # hold-still collection takes only touches near the next touch, then registers
+        self._touch = (None, None, "")  # (inputs it was computed from, TouchGuidance or None, targets' name or why not)
+        self._checkpoint_errors = {}  # label -> standard error (mm) of the stored position
+        self._checkpoint_alarms = {}  # label -> the CheckResult of its last check, while it alarms
+        self._points_at_alarm = (None, 0)  # (probe points node ID, points in it) when the first alarm came
+        self._stale_points = 0  # probe points touched before the alarm that the last registration used
+        self._checkpoint_text = ""
+        self._bone_frame = (None, None)  # (IPC key, BoneFrame)
+        self._tip_frames.clear()
 
     def _attach_parameter_node(self):
         node = get_parameter_node(self.scene)
@@ -333,6 +364,11 @@ class NavigationController:
         if name != "probeToReference":
             return
         self._probe_frames += 1
+        tip_node = self.parameters.probeTipToProbe
+        if tip_node is not None:
+            when = self.clock() if self.pose_time is None else self.pose_time(caller)
+            pose = matrix_of(caller, "ProbeToReference") @ matrix_of(tip_node, "ProbeTipToProbe")
+            self._tip_frames.add(when, pose[:3, 3])
         if self._pivot_poses is not None:
             self._pivot_poses.append(matrix_of(caller, "ProbeToReference"))
         if self._auto_collect:
@@ -389,7 +425,23 @@ class NavigationController:
             cut=self._cut_text(parameters),
             **self._robot_report(),
             **self._registration_report(),
+            **self._next_touch_report(parameters),
+            guided_collect=self._guided,
+            checkpoint_count=_count(parameters.checkpoints),
+            checkpoint_text=self._checkpoint_text,
+            checkpoint_alarm="\n".join(result.text for result in self._checkpoint_alarms.values()),
+            plane_placement=self._plane_placement(parameters),
         )
+
+    def _withheld(self):
+        """Why the registration is not to be navigated with now, or None: it waits for the user's acceptance, or a
+        checkpoint moved since it was stored (the reference body slipped)."""
+        if self._pending is not None:
+            return "the registration has alarms and waits for acceptance"
+        if self._checkpoint_alarms:
+            labels = ", ".join(self._checkpoint_alarms)
+            return f"checkpoint {labels} moved since it was stored: the reference body may have slipped"
+        return None
 
     def _tip_reference_mm(self, parameters):
         if parameters.probeTipToProbe is None or self.tool_state("probeToReference").state != "valid":
@@ -412,7 +464,7 @@ class NavigationController:
 
     def _tip_to_surface_mm(self, parameters):
         nodes = (parameters.ipcModel, parameters.probeToReference, parameters.probeTipToProbe)
-        if any(node is None for node in nodes) or parameters.referenceToImage is None or self._pending is not None:
+        if any(node is None for node in nodes) or parameters.referenceToImage is None or self._withheld() is not None:
             return None
         if self.tool_state("probeToReference").state != "valid":
             return None
@@ -425,7 +477,7 @@ class NavigationController:
         result = self.last_result
         if (
             result is None
-            or self._pending is not None
+            or self._withheld() is not None
             or result.pose_covariance is None
             or parameters.probeTipToProbe is None
         ):
@@ -435,6 +487,71 @@ class NavigationController:
         tip = self.steps.tip_in_reference(parameters.probeToReference, parameters.probeTipToProbe)
         tip_image = result.reference_to_image[:3, :3] @ tip + result.reference_to_image[:3, 3]
         return float(result.predicted_error_mm(tip_image[None])[0])
+
+    def _refresh_next_touch(self, parameters):
+        """(TouchGuidance or None, the targets' name or why there is none) for the last registration, computed
+        again, and drawn (``NextTouch``), only when the registration, its acceptance, the targets, the reachable
+        surface or the IPC changed."""
+        result = self.last_result
+        targets, problem = None, ""
+        if result is None:
+            problem = ""
+        elif self._pending is not None:
+            problem = "next touch: accept the registration or register again first"
+        else:
+            try:
+                targets, name = next_touch.guidance_targets(self._cut, parameters.targetsImage)
+            except ValueError as error:
+                problem = f"next touch: {error}"
+        reachable, ipc = parameters.reachableSurface, parameters.ipcModel
+        key = (
+            self._registrations,
+            problem,
+            None if targets is None else targets.tobytes(),
+            _node_state(reachable),
+            _node_state(ipc),
+        )
+        if self._touch[0] != key:
+            guidance, why = None, problem
+            if targets is not None:
+                try:
+                    guidance = next_touch.compute(result, self.steps.surface_index(ipc), targets, reachable)
+                    why = name
+                except (ValueError, TypeError) as error:
+                    why = f"next touch: {error}"
+            self._touch = (key, guidance, why)
+            next_touch.draw(self.scene, parameters, guidance)
+        return self._touch[1], self._touch[2]
+
+    def _next_touch_report(self, parameters):
+        """``next_touch`` (next_touch.NextTouch or None) and ``next_touch_text`` for ``status()``."""
+        guidance, why = self._refresh_next_touch(parameters)
+        if guidance is None:
+            return {"next_touch": None, "next_touch_text": why}
+        tip = self._tip_reference_mm(parameters)
+        tip_image = None
+        if tip is not None and parameters.referenceToImage is not None:
+            tip_image = apply_transform(matrix_of(parameters.referenceToImage), np.array([tip]))[0]
+        touch = next_touch.status_of(guidance, why, parameters.targetTreMm, tip_image)
+        return {"next_touch": touch, "next_touch_text": touch.text}
+
+    def _frame(self, parameters):
+        """The IPC's BoneFrame (``core.plane_placement``), computed once per IPC."""
+        key = _node_state(parameters.ipcModel)
+        if self._bone_frame[0] != key:
+            self._bone_frame = (key, bone_frame(points_of(parameters.ipcModel, "IPC model")))
+        return self._bone_frame[1]
+
+    def _plane_placement(self, parameters):
+        """The PlanePlacement of the selected osteotomy plane in the bone's frame, or None (no plane, no IPC, a plane
+        along the bone)."""
+        plane = parameters.osteotomyPlane
+        if plane is None or parameters.ipcModel is None:
+            return None
+        try:
+            return placement_of(self._frame(parameters), *cutting.plane_geometry(plane))
+        except (ValueError, TypeError):
+            return None
 
     def availability(self):
         """{action: None when it can run now, else the reason in words} for every action of ``ACTIONS``."""
@@ -451,6 +568,7 @@ class NavigationController:
             "collect_marker": collecting,
             "set_auto_collect": collecting if not self._auto_collect else None,
             "set_hold_still_collect": collecting if self._hold_still is None else None,
+            "set_guided_collect": None if self._guided else collecting or self._guided_problem(parameters),
             "register": _first_missing(
                 (parameters.ipcModel, "build the IPC from the CT (step 1) or select an IPC model"),
                 (parameters.markersImage, "find or place the marker centres in the image (step 1)"),
@@ -465,16 +583,48 @@ class NavigationController:
             ),
             "accept_registration": None if self._pending is not None else "no registration is waiting for acceptance",
             "set_included": None if parameters.residualTable is not None else "register once first",
+            "store_checkpoint": collecting or self._registered_problem(parameters),
+            "check_checkpoint": collecting
+            or (None if _count(parameters.checkpoints) else "store a checkpoint first (touch a divot or a landmark)"),
+            "place_osteotomy_plane": self._ipc_problem(parameters),
+            "place_plane_at_tip": self._ipc_problem(parameters) or collecting or self._registered_problem(parameters),
             "plan_cut": _first_missing(
-                (parameters.osteotomyPlane, "place a plane on the bone (Markups toolbar) and select it"),
+                (
+                    parameters.osteotomyPlane,
+                    "place the osteotomy plane on the bone first: give its level and angles, or place a plane with "
+                    "Slicer's Markups toolbar and select it",
+                ),
                 (parameters.ipcModel, "build the IPC from the CT (step 1) or select an IPC model"),
             ),
             "save_plan": self._plan_problem(parameters),
-            "send_tool_path": self._plan_problem(parameters) or self._robot_problem(parameters),
+            "send_tool_path": self._plan_problem(parameters)
+            or (None if not self._checkpoint_alarms else self._withheld())
+            or self._robot_problem(parameters),
             "stop_robot": None if self.robot is not None and self.robot.is_open else "no path was sent to the robot",
             "save": None,
         }
         return reasons
+
+    def _ipc_problem(self, parameters):
+        return None if parameters.ipcModel is not None else "build the IPC from the CT (step 1) or select an IPC model"
+
+    def _registered_problem(self, parameters):
+        """Why the registration cannot be used now (none applied, or withheld), or None."""
+        if parameters.referenceToImage is None or self.last_result is None:
+            return "register first (step 4)"
+        return self._withheld()
+
+    def _guided_problem(self, parameters):
+        guidance, why = self._refresh_next_touch(parameters)
+        if guidance is None:
+            return why or "register with cr-fused first (step 4)"
+        bound = float(np.max(guidance.predicted_tre_95_mm))
+        if bound < parameters.targetTreMm:
+            return (
+                f"enough touches already: every target within {bound:.2f} mm with 95 % confidence (limit "
+                f"{parameters.targetTreMm:g} mm); lower the limit to collect more"
+            )
+        return None
 
     def _ct_problem(self, parameters):
         if self._processing_ct:
@@ -625,6 +775,9 @@ class NavigationController:
                 if touch is not None:
                     self._add_touch(touch)
                 self._notify("hold-still", False)
+            if self._guided:
+                self._guided = False
+                self._notify("guided-collect", False)
             return
         self._require("set_hold_still_collect")
         if self._hold_still is not None:
@@ -642,11 +795,31 @@ class NavigationController:
         )
         self._notify("hold-still", True)
 
+    def set_guided_collect(self, enabled):
+        """Hold-still collection that follows the next touch (issue 26): a touch within ``GUIDED_RADIUS_MM`` of the
+        point drawn on the bone is collected, the patient registered again at once and the next touch moved on; a
+        touch elsewhere is not collected. It stops by itself when the touches are enough (every target's 95 % bound
+        below ``targetTreMm``), when a registration raises an alarm, or when hold-still collection is turned off."""
+        if not enabled:  # and the hold-still collection it turned on
+            if self._guided:
+                self._stop_guided("guided collection off")
+            return
+        self._require("set_guided_collect")
+        self.set_hold_still_collect(True)
+        self._guided = True
+        self._say(
+            f"guided collection on: touch the point drawn on the bone (within {next_touch.GUIDED_RADIUS_MM:g} mm), "
+            "hold still, then lift; the registration follows each touch"
+        )
+        self._notify("guided-collect", True)
+
     def _add_touch(self, touch):
         if touch.rest:  # the probe lay still since collection began: not a touch of anything
             self._say(
                 f"not collected: the probe lay still for {touch.duration_s:.1f} s since collection began (a rest)"
             )
+            return
+        if self._guided and not self._near_next_touch(touch.position):
             return
         parameters = self.parameters
         node = parameters.probePoints
@@ -659,6 +832,62 @@ class NavigationController:
             f"spread {touch.spread_mm:.2f} mm"
         )
         self._notify("collected", (node, index, touch))
+        if self._guided:
+            self._register_guided(index)
+
+    def _near_next_touch(self, position):
+        """Guided collection: True when a touch at ``position`` (reference coordinates) lies near the next touch;
+        otherwise says why it is not collected (and stops guided collection when there is no next touch)."""
+        guidance, why = self._refresh_next_touch(self.parameters)
+        if guidance is None:
+            self._stop_guided(f"guided collection stopped: {why or 'no next touch'}", is_error=True)
+            return False
+        touched = apply_transform(self.last_result.reference_to_image, np.asarray(position)[None])[0]
+        distance = float(np.linalg.norm(touched - guidance.next_touch.position_image))
+        if distance > next_touch.GUIDED_RADIUS_MM:
+            self._say(
+                f"not collected: that touch was {distance:.1f} mm from the point drawn on the bone (within "
+                f"{next_touch.GUIDED_RADIUS_MM:g} mm is taken); touch the drawn point",
+                is_error=True,
+            )
+            return False
+        return True
+
+    def _stop_guided(self, message=None, is_error=False):
+        """End guided collection and the hold-still collection under it; say ``message`` (after the last touch's)."""
+        self._guided = False
+        self.set_hold_still_collect(False)
+        self._notify("guided-collect", False)
+        if message:
+            self._say(message, is_error=is_error)
+
+    def _register_guided(self, index):
+        """After a guided touch: register again; stop when it alarms or the touches are enough."""
+        try:
+            result = self.register()
+        except (ValueError, RuntimeError) as error:
+            self._stop_guided(f"guided collection stopped: the registration failed: {error}", is_error=True)
+            return
+        if result.alarms:
+            self._stop_guided()  # register() said the alarm
+            return
+        parameters = self.parameters
+        report = self._next_touch_report(parameters)
+        touch = report["next_touch"]
+        if touch is None:
+            self._stop_guided(f"guided collection stopped: {report['next_touch_text']}", is_error=True)
+        elif touch.enough:
+            self._stop_guided(
+                f"ENOUGH after {index + 1} probe points: every target within {touch.bound_95_mm:.2f} mm with 95 % "
+                f"confidence (limit {touch.target_tre_mm:g} mm), predicted error {touch.predicted_tre_mm:.2f} mm; "
+                "guided collection stopped"
+            )
+        else:
+            self._say(
+                f"point {index + 1} collected and registered: predicted error {touch.predicted_tre_mm:.2f} mm (95 % "
+                f"bound {touch.bound_95_mm:.2f} mm, limit {touch.target_tre_mm:g} mm); the next touch is drawn, it "
+                f"brings {touch.predicted_tre_after_mm:.2f} mm"
+            )
 
     # -- 4. register ---------------------------------------------------------------------------------------
     def register(self):
@@ -678,6 +907,7 @@ class NavigationController:
             policy=parameters.policy if method == "cr-ramsicp" else None,
         )
         self.last_result = result
+        self._registrations += 1
         self._pending = result if result.alarms else None
         if result.alarms:  # an alarm stops: not applied to navigation until the user accepts it
             self._say(
@@ -687,7 +917,13 @@ class NavigationController:
             )
         else:
             self._apply(result)
-            self._say(registration_summary(result))
+            self._say(registration_summary(result) + self._checkpoint_note())
+        self.session_log.record(
+            "registered",
+            applied=not result.alarms,
+            points=len(result.residuals_mm),
+            **_result_figures(result),
+        )
         self._notify("registered", result)
         return result
 
@@ -696,14 +932,20 @@ class NavigationController:
         self._require("accept_registration")
         result, self._pending = self._pending, None
         self._apply(result)
-        self._say(f"registration accepted despite {len(result.alarms)} alarm(s): {registration_summary(result)}")
+        self.session_log.record("accepted", **_result_figures(result))
+        self._say(
+            f"registration accepted despite {len(result.alarms)} alarm(s): {registration_summary(result)}"
+            + self._checkpoint_note()
+        )
         self._notify("accepted", result)
         return result
 
     def _apply(self, result):
-        """ReferenceToImage from ``result``, and the probe under it: the probe then moves over the CT."""
+        """ReferenceToImage from ``result``, and the probe under it: the probe then moves over the CT. After a
+        checkpoint alarm, a registration on probe points all touched since then clears it (``_after_slip``)."""
         parameters = self.parameters
         self.steps.apply_registration(result)
+        self._after_slip(parameters)
         if parameters.probeTipToProbe is not None and parameters.probeToReference is not None:
             self.steps.build_hierarchy(
                 parameters.probeTipToProbe, parameters.probeToReference, parameters.referenceToImage
@@ -722,6 +964,121 @@ class NavigationController:
         """Include or exclude probe point ``point_index`` (0-based) from the next registration."""
         self.steps.set_included(point_index, included)
 
+    # -- 5. verify: checkpoints ----------------------------------------------------------------------------
+    def store_checkpoint(self):
+        """Store the tip held still on the bone (a divot, a landmark) as checkpoint ``C<n>``, in reference
+        coordinates (``checkpoints``): the mean tip over the last ``checkpoints.HOLD_S`` seconds. Touch it again
+        later with ``check_checkpoint``. Returns its label."""
+        self._require("store_checkpoint")
+        parameters = self.parameters
+        held = self._held_tip(parameters)
+        node = checkpoints.checkpoint_node(self.scene, parameters, parameters.referenceToImage)
+        _, labels = checkpoints.stored(node)
+        label = f"C{max([int(name[1:]) for name in labels if name[1:].isdigit()], default=0) + 1}"
+        node.AddControlPoint(held.position.tolist(), label)
+        self._checkpoint_errors[label] = held.standard_error_mm
+        self.steps.autosave(node)
+        self.session_log.record(
+            "checkpoint-stored",
+            label=label,
+            position_reference_mm=held.position.tolist(),
+            standard_error_mm=held.standard_error_mm,
+            frames=held.frames,
+        )
+        self._checkpoint_text = (
+            f"checkpoint {label} stored (mean of {held.frames} frames, spread {held.spread_mm:.2f} mm): touch it again "
+            "later and press Check to find out whether the reference body moved"
+        )
+        self._say(self._checkpoint_text)
+        self._notify("checkpoint", (label, None))
+        return label
+
+    def check_checkpoint(self):
+        """Touch a stored checkpoint again: how far (mm, reference coordinates) the held tip lies from where it was
+        stored; beyond ``checkpointLimitMm`` an alarm (the reference body slipped), shown in every shell and
+        written into the session log. Returns the ``checkpoints.CheckResult``."""
+        self._require("check_checkpoint")
+        parameters = self.parameters
+        held = self._held_tip(parameters)
+        node = parameters.checkpoints
+        positions, labels = checkpoints.stored(node)
+        errors = [self._checkpoint_errors.get(label, 0.0) for label in labels]
+        try:
+            result = checkpoints.check(positions, errors, labels, held, parameters.checkpointLimitMm)
+        except ValueError as error:
+            raise WorkflowError(str(error)) from None
+        if result.alarm:
+            if not self._checkpoint_alarms:  # the probe points touched before this lie in the frame that moved
+                points = parameters.probePoints
+                self._points_at_alarm = (None, 0) if points is None else (points.GetID(), _count(points))
+            self._checkpoint_alarms[result.label] = result
+        else:
+            self._checkpoint_alarms.pop(result.label, None)
+        checkpoints.show_check(node, result, alarming=bool(self._checkpoint_alarms))
+        self.session_log.record(
+            "checkpoint-checked",
+            label=result.label,
+            distance_mm=result.distance_mm,
+            sigma_mm=result.sigma_mm,
+            limit_mm=result.limit_mm,
+            alarm=result.alarm,
+            position_reference_mm=held.position.tolist(),
+            stored_reference_mm=positions[labels.index(result.label)].tolist(),
+            frames=held.frames,
+        )
+        self._checkpoint_text = result.text
+        self._say(result.text, is_error=result.alarm)
+        self._notify("checkpoint", (result.label, result))
+        return result
+
+    def _held_tip(self, parameters):
+        try:
+            return self._tip_frames.held(self._tip_frames.latest_s, parameters.holdStillMm)
+        except ValueError as error:
+            raise WorkflowError(str(error)) from None
+
+    def _checkpoint_note(self):
+        """What a registration's message adds while a checkpoint alarm stands."""
+        if not self._checkpoint_alarms:
+            return ""
+        return (
+            f"; the CHECKPOINT ALARM stands: {self._stale_points} of the probe points used were touched before the "
+            "reference body moved; untick them ('include') or collect a new list, then register again"
+        )
+
+    def _after_slip(self, parameters):
+        """A registration applied after a checkpoint alarm: when none of the probe points it used was touched
+        before the alarm (they lie in the frame the reference body left), the checkpoints that moved are dropped
+        (stored where the reference body sat before) and the alarm cleared; otherwise the alarm stands."""
+        self._stale_points = 0
+        if not self._checkpoint_alarms:
+            return
+        node_id, count = self._points_at_alarm
+        points = parameters.probePoints
+        table = parameters.residualTable
+        if points is not None and points.GetID() == node_id and table is not None and count:
+            include = table.GetTable().GetColumnByName("include")
+            self._stale_points = sum(bool(include.GetValue(row)) for row in range(min(count, table.GetNumberOfRows())))
+        if self._stale_points:
+            return
+        node = parameters.checkpoints
+        dropped = list(self._checkpoint_alarms)
+        self._checkpoint_alarms = {}
+        if node is not None:
+            _, labels = checkpoints.stored(node)
+            for label in dropped:
+                if label in labels:
+                    node.RemoveNthControlPoint(labels.index(label))
+                    labels.remove(label)
+            checkpoints.show_check(node, None, alarming=False)
+            self.steps.autosave(node)
+        for label in dropped:
+            self._checkpoint_errors.pop(label, None)
+        self.session_log.record("checkpoint-dropped", labels=dropped, reason="moved; registered again")
+        self._checkpoint_text = (
+            f"checkpoint {', '.join(dropped)} dropped after the new registration (it had moved): store it again"
+        )
+
     # -- 6. robot ------------------------------------------------------------------------------------------
     def robot_calibration(self):
         """Eqs. 3-4 from the selected calibrator positions: writes RobotBaseToTracker and ImageToRobotBase."""
@@ -737,6 +1094,59 @@ class NavigationController:
         return nodes
 
     # -- 7. plan and cut -----------------------------------------------------------------------------------
+    def place_osteotomy_plane(self, level_mm=None, tilt_anterior_deg=None, tilt_side_deg=None, entry_deg=None):
+        """Place the osteotomy plane by numbers in the bone's frame (``core.plane_placement``): ``level_mm`` below the
+        bone's top, its tilts from square to the bone's axis towards anterior and towards the side (degrees), and
+        the side the blade enters from (degrees around the bone, 0 anterior). A value left None keeps the selected
+        plane's (a new plane: the bone's middle, square to it, entered from anterior). Creates ``OsteotomyPlane``
+        when no plane is selected. Returns the PlanePlacement."""
+        self._require("place_osteotomy_plane")
+        parameters = self.parameters
+        frame = self._frame(parameters)
+        current = self._plane_placement(parameters) or PlanePlacement(level_mm=frame.length_mm / 2.0)
+        given = (level_mm, tilt_anterior_deg, tilt_side_deg, entry_deg)
+        kept = (current.level_mm, current.tilt_anterior_deg, current.tilt_side_deg, current.entry_deg)
+        values = [float(kept[i]) if value is None or value == "" else float(value) for i, value in enumerate(given)]
+        return self._put_plane(parameters, frame, PlanePlacement(*values))
+
+    def place_plane_at_tip(self):
+        """Place the osteotomy plane through the tracked probe tip on the bone (registered into the image), with the
+        selected plane's tilts: the blade enters from the side the tip touches. Returns the PlanePlacement."""
+        self._require("place_plane_at_tip")
+        parameters = self.parameters
+        frame = self._frame(parameters)
+        tip = self.steps.tip_in_reference(parameters.probeToReference, parameters.probeTipToProbe)
+        tip_image = apply_transform(matrix_of(parameters.referenceToImage), tip[None])[0]
+        current = self._plane_placement(parameters) or PlanePlacement(level_mm=0.0)
+        try:
+            placement = placement_through(frame, tip_image, current.tilt_anterior_deg, current.tilt_side_deg)
+        except ValueError as error:
+            raise WorkflowError(str(error)) from None
+        return self._put_plane(parameters, frame, placement)
+
+    def _put_plane(self, parameters, frame, placement):
+        """Write a PlanePlacement into the selected plane (``OsteotomyPlane``, created when none is selected)."""
+        try:
+            origin, normal, depth = placed_plane(frame, placement)
+        except ValueError as error:
+            raise WorkflowError(str(error)) from None
+        plane = parameters.osteotomyPlane
+        if plane is None:
+            plane = self.scene.AddNewNodeByClass("vtkMRMLMarkupsPlaneNode", "OsteotomyPlane")
+            plane.CreateDefaultDisplayNodes()
+            plane.SetSizeMode(plane.SizeModeAbsolute)
+            plane.SetSize(60.0, 60.0)
+            parameters.osteotomyPlane = plane
+        plane.SetOriginWorld(origin.tolist())
+        plane.SetAxesWorld(np.cross(depth, normal).tolist(), depth.tolist(), normal.tolist())
+        self._say(
+            f"osteotomy plane placed {placement.level_mm:.1f} mm below the bone's top, tilted "
+            f"{placement.tilt_anterior_deg:.1f} degrees anterior and {placement.tilt_side_deg:.1f} degrees to the "
+            f"side, the blade entering at {placement.entry_deg:.0f} degrees; plan the cut on it"
+        )
+        self._notify("plane", placement)
+        return placement
+
     def plan_cut(self):
         """Plan the osteotomy on the selected plane (``cutting``): each cut's endpoints, the tool path and, for a
         wedge, the second cut, written into the scene. With no verification targets selected yet the endpoints
@@ -870,7 +1280,7 @@ class NavigationController:
         registration with alarms waits for acceptance)."""
         if (
             self._cut is None
-            or self._pending is not None
+            or self._withheld() is not None
             or any(self.tool_state(name).state != "valid" for name in ("toolToTracker", "referenceToTracker"))
         ):
             return None
@@ -972,8 +1382,29 @@ def registration_summary(result):
     return text
 
 
+def _result_figures(result):
+    """A registration's figures for the session log (mm)."""
+    return {
+        "method": result.method,
+        "fre_mm": result.fre_mm,
+        "ppc_rms_mm": result.ppc_rms_mm,
+        "tre_mm": result.tre_mm,
+        "predicted_tre_rms_mm": result.predicted_tre_rms_mm,
+        "alarms": list(result.alarms),
+        "reference_to_image": np.asarray(result.reference_to_image).tolist(),
+    }
+
+
 def _count(node):
     return 0 if node is None else node.GetNumberOfControlPoints()
+
+
+def _node_state(node):
+    """What identifies a node's data now (its ID and modification times), or None: a key of what was computed."""
+    if node is None:
+        return None
+    data = node.GetPolyData() if node.IsA("vtkMRMLModelNode") else None
+    return (node.GetID(), node.GetMTime(), None if data is None else data.GetMTime())
 
 
 def _first_missing(*pairs):

@@ -39,7 +39,7 @@ class PlannedCut:
 def plane_geometry(plane_node, name="osteotomy plane"):
     """(origin, normal, depth) (3,) each of a markups plane, in world (RAS) coordinates: centre, z and y axes."""
     if plane_node is None:
-        raise ValueError(f"{name}: no plane selected; place a plane on the bone with the Markups toolbar")
+        raise ValueError(f"{name}: no plane selected; place the plane on the bone first")
     if not _placed(plane_node):
         raise ValueError(f"{name} {plane_node.GetName()!r} is not placed yet; place it on the bone in the CT")
     origin, x_axis, y_axis, z_axis = [0.0] * 3, [0.0] * 3, [0.0] * 3, [0.0] * 3

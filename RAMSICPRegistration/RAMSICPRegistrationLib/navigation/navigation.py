@@ -193,10 +193,11 @@ class NavigationLogic:
         returns its index."""
         count = points_node.GetNumberOfControlPoints()
         points_node.AddControlPoint(np.asarray(position, dtype=np.float64).tolist(), f"P{count + 1}")
-        self._autosave(points_node)
+        self.autosave(points_node)
         return count
 
-    def _autosave(self, node):
+    def autosave(self, node):
+        """Write a point list to the autosave folder at once, atomically (``<node name>.mrk.json``)."""
         if self.autosave_directory is None:
             return
         positions = mrml_nodes.fiducial_positions(node)
@@ -248,12 +249,11 @@ class NavigationLogic:
                 "the coarse registration needs at least 3 marker centres in both the image and the "
                 "patient; detect or place the missing ones"
             )
-        targets = [None, None]
-        if targets_image_node is not None and targets_patient_node is not None:
-            targets = [
-                points_of(targets_image_node, "targets (image)"),
-                points_of(targets_patient_node, "targets (patient)"),
-            ]
+        targets = [None, None]  # image targets alone give the predicted error there (the plan's endpoints)
+        if targets_image_node is not None and targets_image_node.GetNumberOfControlPoints():
+            targets[0] = points_of(targets_image_node, "targets (image)")
+            if targets_patient_node is not None:
+                targets[1] = points_of(targets_patient_node, "targets (patient)")
         result = register(
             self._index(ipc_node, ipc),
             ppc_all[include],
@@ -338,11 +338,17 @@ class NavigationLogic:
         table.AddColumn(column)
         table.Modified()
 
+    def surface_index(self, ipc_node):
+        """The IPC model's SurfaceIndex (image coordinates), built once per state of its surface."""
+        return self._index(ipc_node, None)
+
     def _index(self, ipc_node, ipc):
-        """The KD-tree of the IPC, rebuilt only when the IPC model changed."""
+        """The KD-tree of the IPC (its points ``ipc``, or read from the node when None), rebuilt only when the IPC
+        model changed."""
         key = (ipc_node.GetID(), ipc_node.GetPolyData().GetMTime())
         if self._index_cache[0] != key:
-            self._index_cache = (key, SurfaceIndex(ipc), ipc_node)
+            points = points_of(ipc_node, "IPC model") if ipc is None else ipc
+            self._index_cache = (key, SurfaceIndex(points), ipc_node)
         return self._index_cache[1]
 
     def _included(self, count):

@@ -14,6 +14,10 @@ from ..core.hold_still import DEFAULT_STILL_MM, DEFAULT_STILL_S
 from ..core.registration import DEFAULT_METHOD, METHODS, POLICIES
 from ..core.tool_path import TOOLS
 
+#: Default of ``checkpointLimitMm``: a 1 mm slip of the reference body is caught with margin for a re-touch's
+#: spread (a divot touched again at another tilt: the pivot's 0.2-0.3 mm RMS), and no alarm on noise alone.
+CHECKPOINT_LIMIT_MM = 0.6
+
 #: The Slicer module's name: the parameter node's singleton tag and its ``ModuleName`` attribute.
 MODULE_NAME = "RAMSICPRegistration"
 
@@ -24,8 +28,8 @@ PLANE = "vtkMRMLMarkupsPlaneNode"
 
 @dataclass(frozen=True)
 class Parameter:
-    """One parameter: a node reference (``node_class``), a float or int within [minimum, maximum], a text, or a
-    choice among ``choices``."""
+    """One parameter: a node reference (``node_class``, or a tuple of classes any of which will do), a float or int
+    within [minimum, maximum], a text, or a choice among ``choices``."""
 
     name: str
     kind: str  # "node", "float", "int", "text" or "choice"
@@ -54,6 +58,21 @@ PARAMETERS = (
     Parameter("autoCollectDistanceMm", "float", "auto-collect spacing (mm)", default=5.0, minimum=0.5, maximum=50.0),
     Parameter("holdStillMm", "float", "hold-still radius (mm)", default=DEFAULT_STILL_MM, minimum=0.2, maximum=10.0),
     Parameter("holdStillS", "float", "hold-still time (s)", default=DEFAULT_STILL_S, minimum=0.05, maximum=5.0),
+    Parameter(
+        "reachableSurface",
+        "node",
+        "the bone surface the probe can reach, image coordinates (default: the whole IPC)",
+        ("vtkMRMLModelNode", FIDUCIALS),
+    ),
+    Parameter(
+        "targetTreMm",
+        "float",
+        "error the plan allows at its targets (mm): enough touches when all lie below it with 95 % confidence",
+        default=1.0,
+        minimum=0.05,
+        maximum=10.0,
+    ),
+    Parameter("nextTouch", "node", "the next touch suggested on the bone, image coordinates (written)", FIDUCIALS),
     # 4. register
     Parameter("method", "choice", "registration method", default=DEFAULT_METHOD, choices=METHODS),
     Parameter("policy", "choice", "how the RAMSICP sweep chooses L", default="rms-plateau", choices=POLICIES),
@@ -63,6 +82,15 @@ PARAMETERS = (
     # 5. verify
     Parameter("targetsImage", "node", "verification targets in the image", FIDUCIALS),
     Parameter("targetsPatient", "node", "verification targets touched on the patient", FIDUCIALS),
+    Parameter("checkpoints", "node", "checkpoints on the bone, reference coordinates (written)", FIDUCIALS),
+    Parameter(
+        "checkpointLimitMm",
+        "float",
+        "a checkpoint touched again farther than this from where it was stored raises an alarm (mm)",
+        default=CHECKPOINT_LIMIT_MM,
+        minimum=0.1,
+        maximum=5.0,
+    ),
     # 6. robot
     Parameter("robotPositions", "node", "calibrator positions in robot-base coordinates", FIDUCIALS),
     Parameter("trackerPositions", "node", "the same positions in tracker coordinates", FIDUCIALS),
@@ -91,6 +119,12 @@ PARAMETERS = (
     Parameter("robotHost", "text", "the robot controller's OpenIGTLink address", default="127.0.0.1"),
     Parameter("robotPort", "int", "the robot controller's OpenIGTLink port", default=18945, minimum=1, maximum=65535),
 )
+
+
+def node_classes(parameter):
+    """The node classes (tuple) a node parameter accepts."""
+    classes = parameter.node_class
+    return (classes,) if isinstance(classes, str) else tuple(classes)
 
 
 class ParameterSet:
@@ -163,8 +197,9 @@ class Parameters:
     def __setattr__(self, name, value):
         parameter = self._parameter(name)
         if parameter.kind == "node":
-            if value is not None and not value.IsA(parameter.node_class):
-                raise TypeError(f"{name}: expected a {parameter.node_class}, got {value.GetClassName()}")
+            classes = node_classes(parameter)
+            if value is not None and not any(value.IsA(node_class) for node_class in classes):
+                raise TypeError(f"{name}: expected a {' or '.join(classes)}, got {value.GetClassName()}")
             self.node.SetParameter(name, "")  # as parameterNodeWrapper writes a node
             self.node.SetNodeReferenceID(name, None if value is None else value.GetID())
             return

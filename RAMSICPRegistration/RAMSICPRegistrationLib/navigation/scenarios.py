@@ -12,6 +12,7 @@ import numpy as np
 from ..core.transforms import apply_transform, invert_transform, make_transform, probe_to_reference, rotation_about_axis
 from ..simulation.ct_phantom import make_ct_phantom
 from ..simulation.package_data import shipped_patient
+from ..simulation.phantom_cache import cached_ct_phantom
 from . import mrml_nodes
 from .controller import NavigationController
 from .navigation import matrix_of, set_matrix
@@ -20,10 +21,18 @@ TIP_IN_PROBE = np.array([0.0, 0.0, 150.0])
 
 
 def make_patient_and_ct(bone="right-tibia", seed=0):
-    """A virtual patient and its CT phantom (about 10 s)."""
+    """A virtual patient and its CT phantom (15-40 s)."""
     patient, vertices, triangles = shipped_patient(bone, seed)
     volume, truth = make_ct_phantom(patient, vertices, triangles, seed=seed)
     return patient, volume, truth
+
+
+def cached_patient_and_ct(bone="right-tibia", seed=0, directory=None):
+    """The virtual patient and the CT volume of ``make_patient_and_ct``, the volume read from the phantom cache
+    (``simulation.phantom_cache``) when it was built before: (patient, volume, built now)."""
+    patient, vertices, triangles = shipped_patient(bone, seed)
+    volume, built = cached_ct_phantom(patient, vertices, triangles, seed=seed, directory=directory)
+    return patient, volume, built
 
 
 def run_workflow(scene, patient, volume, truth, autosave_directory=None, seed=5):

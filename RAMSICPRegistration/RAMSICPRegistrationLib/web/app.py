@@ -40,6 +40,7 @@ from .scene_display import (
     update_needle,
     update_residual_points,
 )
+from .vtk_warnings import views_created_quietly
 
 logger = logging.getLogger(__name__)
 
@@ -161,7 +162,9 @@ class NavigationWebApp:
                 factory(self.server, populate_view_ui_f=gutter, target_fps=fps, blur_fps=None)
             )
         self.layout = LayoutManager(self.scene, self.slicer.view_manager, self.server)
-        self.layout.register_layout(LAYOUT_ID, navigation_layout())
+        with views_created_quietly():  # the slice views' VTK 9.6 deprecation warning, and only it
+            self.layout.register_layout(LAYOUT_ID, navigation_layout())  # creates the views
+            self.layout.create_layout_views_if_needed(LAYOUT_ID)
         self.layout.set_layout(LAYOUT_ID)
         for view in self.slicer.view_manager.get_views():
             view.render_window().SetMultiSamples(0)  # 8x multisampling costs 10x on software GL
@@ -211,9 +214,10 @@ class NavigationWebApp:
     def add_demo_patient(self):
         """The demo patient: its CT phantom processed into the IPC and marker centres, the reference body's
         marker centres, and the four osteotomy targets in both frames (so the page shows a TRE)."""
-        from ..navigation.scenarios import make_patient_and_ct
+        from ..navigation.scenarios import cached_patient_and_ct
 
-        patient, volume, _ = make_patient_and_ct()
+        patient, volume, built = cached_patient_and_ct()  # built once, then read from the user's cache (< 1 s)
+        logger.info("demo CT phantom %s", "built and cached" if built else "read from the cache")
         parameters = self.controller.parameters
         parameters.ctVolume = mrml_nodes.volume_node(self.scene, volume, "CT")
         image = self.controller.process_ct()
@@ -309,6 +313,37 @@ class NavigationWebApp:
             self.scene, self.controller.parameters.residualTable, self.controller.parameters.referenceToImage
         )
 
+    def set_target_tre(self, value):
+        """The error the plan allows at its targets (mm), typed on the page: 'enough' is judged against it."""
+        try:
+            self.controller.parameters.targetTreMm = float(value)
+        except (TypeError, ValueError) as error:  # an empty or out-of-range field: the old limit stays
+            logger.info("target TRE %r not taken: %s", value, error)
+        self.refresh_panel()
+
+    def place_plane(self, level_mm, tilt_anterior_deg, tilt_side_deg, entry_deg):
+        """Place the osteotomy plane from the page's fields (an empty field keeps the plane's value)."""
+        values = [None if value in (None, "") else value for value in (level_mm, tilt_anterior_deg, tilt_side_deg)]
+        self.run("place_osteotomy_plane", *values, None if entry_deg in (None, "") else entry_deg)
+        self._show_plane_inputs()
+
+    def place_plane_at_tip(self):
+        self.run("place_plane_at_tip")
+        self._show_plane_inputs()
+
+    def _show_plane_inputs(self):
+        """The page's plane fields show the placement the controller made."""
+        placement = self.controller.status().plane_placement
+        if placement is None:
+            return
+        with self.server.state:
+            self.server.state.update(
+                plane_level=round(placement.level_mm, 1) + 0.0,  # + 0.0: never '-0'
+                plane_tilt_anterior=round(placement.tilt_anterior_deg, 1) + 0.0,
+                plane_tilt_side=round(placement.tilt_side_deg, 1) + 0.0,
+                plane_entry=round(placement.entry_deg) % 360,
+            )
+
     def set_choice(self, name, value):
         """The method or policy chosen on the page, written into the parameter node."""
         try:
@@ -327,6 +362,8 @@ class NavigationWebApp:
 
         self.server.state.update(panel_state(self.controller, self.bridge.status()))
         self.server.state.busy = ""
+        self.server.state.update(plane_level="", plane_tilt_anterior="", plane_tilt_side="", plane_entry="")
+        self._show_plane_inputs()  # a scene's plane: its placement in the fields
         self.server.state.trame__title = "RAMSICP Navigator"
         build_page(self)
 

@@ -102,6 +102,8 @@ def build_page(app):
             _pivot_section(app)
             _collect_section(app)
             _register_section(app)
+            _next_touch_section(app)
+            _checkpoint_section(app)
             _cut_section(app)
             _save_section(app)
         with page.content:
@@ -214,13 +216,129 @@ def _register_section(app):
                 html.Td("{{ row.note }}")
 
 
+def _number(label, name, element_id, **options):
+    """A number field bound to the page's own state ``name`` (what the user types stays until a button sends it)."""
+    from trame.widgets import vuetify3 as v3
+
+    v3.VTextField(
+        label=label,
+        v_model=(name,),
+        type="number",
+        density="compact",
+        hide_details=True,
+        id=element_id,
+        **options,
+    )
+
+
+def _next_touch_section(app):
+    """Issue 26: where to touch next (drawn on the bone as an orange sphere), the predicted error it would bring,
+    'enough' against the plan's limit, and guided collection that takes only touches near the drawn point."""
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Next touch"), v3.VCardText(classes="py-1"):
+        v3.VTextField(
+            label="error allowed at the plan's targets (mm)",
+            model_value=("target_tre",),
+            update_modelValue=(app.set_target_tre, "[$event]"),
+            type="number",
+            step=0.05,
+            density="compact",
+            hide_details=True,
+            id="target-tre",
+        )
+        with v3.VAlert(
+            v_if="next_touch",
+            type=("next_touch && next_touch.enough ? 'success' : 'info'",),
+            density="compact",
+            classes="my-1",
+            id="next-touch",
+        ):
+            html.Div(
+                "<b v-if='next_touch.enough'>ENOUGH touches</b><span v-else>next touch: the orange point "
+                "on the bone, it brings <b id='next-touch-after'>{{ next_touch.after }}</b> mm</span>",
+            )
+            html.Div(
+                "predicted error now <b id='next-touch-now'>{{ next_touch.now }}</b> mm (95 % bound "
+                "{{ next_touch.bound }} mm)<span v-if='next_touch.tip_distance'>; tip {{ next_touch.tip_distance }} mm "
+                "from the point</span>",
+                classes="text-body-2",
+            )
+        html.Div("{{ next_touch_text }}", v_if="!next_touch && next_touch_text", classes="text-body-2")
+        v3.VSwitch(
+            label="follow the suggestions (hold still on the point, lift; registers after each)",
+            model_value=("guided_collect",),
+            update_modelValue=(lambda value: app.run("set_guided_collect", bool(value)), "[$event]"),
+            disabled=("!guided_collect && (!!blocked.set_guided_collect || !!busy)",),
+            title=("blocked.set_guided_collect",),
+            density="compact",
+            hide_details=True,
+            color="primary",
+            id="guided-collect",
+        )
+
+
+def _checkpoint_section(app):
+    """Issue 26: checkpoints on the bone stored after the registration and touched again later; one that moved
+    beyond the limit is an alarm (the reference body slipped)."""
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with _section("Checkpoints"), v3.VCardText(classes="py-1"):
+        _action_button(app, "Store checkpoint", "store_checkpoint", "mdi-map-marker-check")
+        _action_button(app, "Check checkpoint", "check_checkpoint", "mdi-map-marker-question")
+        html.Div(
+            "stored: <b id='checkpoint-count'>{{ checkpoint_count }}</b>"
+            "<span v-if='checkpoint_text'> &mdash; <span id='checkpoint-text'>{{ checkpoint_text }}</span></span>",
+            classes="text-body-2",
+        )
+        with v3.VAlert(v_if="checkpoint_alarm", type="error", density="compact", classes="my-1", id="checkpoint-alarm"):
+            html.Div("{{ checkpoint_alarm }}", classes="text-body-2 font-weight-bold", style="white-space: pre-line;")
+
+
+def _plane_inputs(app):
+    """The osteotomy plane placed by numbers in the bone's frame, or through the tracked tip on the bone."""
+    from trame.widgets import html
+    from trame.widgets import vuetify3 as v3
+
+    with v3.VRow(dense=True):
+        for label, name, element_id in (
+            ("level below the top (mm)", "plane_level", "plane-level"),
+            ("tilt anterior (deg)", "plane_tilt_anterior", "plane-tilt-anterior"),
+            ("tilt to the side (deg)", "plane_tilt_side", "plane-tilt-side"),
+            ("blade enters at (deg)", "plane_entry", "plane-entry"),
+        ):
+            with v3.VCol(cols=6):
+                _number(label, name, element_id)
+    _action_button(
+        app,
+        "Place the plane",
+        "place_osteotomy_plane",
+        "mdi-knife",
+        click=(app.place_plane, "[plane_level, plane_tilt_anterior, plane_tilt_side, plane_entry]"),
+    )
+    _action_button(
+        app, "Plane through the tip", "place_plane_at_tip", "mdi-crosshairs-gps", click=app.place_plane_at_tip
+    )
+    html.Div(
+        "plane: {{ plane.level }} mm below the top, tilted {{ plane.tilt_anterior }}&deg; anterior and "
+        "{{ plane.tilt_side }}&deg; to the side, blade entering at {{ plane.entry }}&deg;",
+        v_if="plane",
+        id="plane",
+        classes="text-body-2",
+    )
+
+
 def _cut_section(app):
-    """The osteotomy plan and the live guidance of the tracked cutting tool; the plane is placed in Slicer or
-    comes with the scene, the page plans on it, sends the path to the robot and shows how the tool lies."""
+    """The osteotomy plan and the live guidance of the tracked cutting tool: the plane is placed here (by numbers in
+    the bone's frame, or through the tip) or comes with the scene; the page plans on it, sends the path to the
+    robot and shows how the tool lies."""
     from trame.widgets import html
     from trame.widgets import vuetify3 as v3
 
     with _section("Plan and cut"), v3.VCardText(classes="py-1"):
+        _plane_inputs(app)
         _action_button(app, "Plan the cut", "plan_cut", "mdi-vector-line")
         _action_button(app, "Send the path to the robot", "send_tool_path", "mdi-robot-industrial")
         _action_button(app, "Stop the robot", "stop_robot", "mdi-hand-back-left", color="error")

@@ -80,6 +80,53 @@ def guidance_state(status):
     }
 
 
+def next_touch_state(status, parameters):
+    """The next touch (issue 26) as the page shows it: the line for the surgeon, the predicted error now and after
+    the touch (mm), whether the touches are enough, the limit, and whether guided collection follows it."""
+    touch = status.next_touch
+    return {
+        "next_touch_text": status.next_touch_text,
+        "next_touch": None
+        if touch is None
+        else {
+            "now": millimetres(touch.predicted_tre_mm),
+            "after": millimetres(touch.predicted_tre_after_mm),
+            "bound": millimetres(touch.bound_95_mm),
+            "enough": bool(touch.enough),
+            "tip_distance": millimetres(touch.tip_distance_mm, 1),
+        },
+        "target_tre": parameters.targetTreMm,
+        "guided_collect": status.guided_collect,
+        "hold_still_collect": status.hold_still_collect,
+    }
+
+
+def checkpoint_state(status):
+    """Checkpoints (issue 26): how many are stored, the last store or check in words, and the alarm of one that
+    moved (the reference body slipped: navigation and the robot path withheld until a new registration)."""
+    return {
+        "checkpoint_count": status.checkpoint_count,
+        "checkpoint_text": status.checkpoint_text,
+        "checkpoint_alarm": status.checkpoint_alarm,
+    }
+
+
+def plane_state(status):
+    """The osteotomy plane's placement in the bone's frame (level below the top in mm, tilts and entry in degrees),
+    as texts, or None when no plane is placed."""
+    placement = status.plane_placement
+    if placement is None:
+        return {"plane": None}
+    return {
+        "plane": {
+            "level": millimetres(placement.level_mm, 1),
+            "tilt_anterior": millimetres(placement.tilt_anterior_deg, 1),
+            "tilt_side": millimetres(placement.tilt_side_deg, 1),
+            "entry": f"{round(placement.entry_deg) % 360:d}",
+        }
+    }
+
+
 def panel_state(controller, bridge_status):
     """The whole panel as a dict of JSON values (trame sends only the keys whose value changed)."""
     status = controller.status()
@@ -114,6 +161,9 @@ def panel_state(controller, bridge_status):
         "sweep_svg": "" if result is None else result_sweep_svg(result),
         "tip_to_surface": millimetres(status.tip_to_surface_mm, 1),
         **guidance_state(status),
+        **next_touch_state(status, parameters),
+        **checkpoint_state(status),
+        **plane_state(status),
         "message": status.message,
         "message_is_error": status.message_is_error,
         "blocked": {action: reasons.get(action) or "" for action in ACTIONS},

@@ -119,6 +119,69 @@ def surface_deviation_mm(shown, original):
     return largest
 
 
+#: Raised when the display copy's recipe changes in a way its key (the IPC's triangles, the reduction) does not show.
+DISPLAY_COPY_VERSION = 1
+
+
+def cached_display_copy(surface, reduction=BONE_DISPLAY_REDUCTION, directory=None):
+    """(copy, deviation): ``bone_display_surface(surface)`` and its ``surface_deviation_mm`` from ``surface``, read
+    from the user's cache (``simulation.phantom_cache.cache_directory``; the same IPC is shown at every start of
+    ``ramsicp web --demo``) when this surface was drawn before, else made (7 s for the demo's IPC on a loaded
+    machine) and cached: one ``.npz`` named by the SHA-256 of the surface's vertices and triangles and the
+    reduction, written atomically; a damaged file is made again, an unwritable cache costs only time."""
+    import hashlib
+    import zipfile
+    from pathlib import Path
+
+    from ..io.atomic_files import atomic_path
+    from ..io.vtk_arrays import triangle_arrays
+    from ..simulation.phantom_cache import cache_directory
+
+    vertices, triangles = triangle_arrays(surface)
+    digest = hashlib.sha256(f"display copy v{DISPLAY_COPY_VERSION} reduction {reduction!r}".encode())
+    for array in (vertices, triangles):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    path = (cache_directory() if directory is None else Path(directory)) / f"display-copy-{digest.hexdigest()[:32]}.npz"
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            copy = _with_normals(poly_data(stored["vertices"], stored["triangles"]), stored["normals"])
+            return copy, float(stored["deviation_mm"])
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile) as error:
+        logger.warning("the cached display copy %s is damaged (%s): making it again", path, error)
+    copy = bone_display_surface(surface, reduction)
+    deviation = surface_deviation_mm(copy, surface)
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    shown_vertices, shown_triangles = triangle_arrays(copy)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as temporary, open(temporary, "wb") as stream:
+            np.savez(
+                stream,
+                vertices=shown_vertices,
+                triangles=shown_triangles,
+                normals=vtk_to_numpy(copy.GetPointData().GetNormals()),
+                deviation_mm=deviation,
+            )
+    except OSError as error:
+        logger.info("the display copy could not be cached in %s (%s)", path, error)
+    return copy, deviation
+
+
+def _with_normals(surface, normals):
+    """``surface`` with (M, 3) point ``normals`` (the shading of ``bone_display_surface``)."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+
+    if len(normals) != surface.GetNumberOfPoints():
+        raise ValueError(f"{len(normals)} normals for {surface.GetNumberOfPoints()} points")
+    array = numpy_to_vtk(np.ascontiguousarray(normals), deep=True)
+    array.SetName("Normals")
+    surface.GetPointData().SetNormals(array)
+    return surface
+
+
 def update_bone_display(scene, ipc_model):
     """Draw the IPC (``ipc_model``, a vtkMRMLModelNode, or None) in the 3D view by a display copy (``BoneDisplay``,
     made by ``bone_display_surface`` when the IPC or its surface changes) and hide the IPC's own display node in
@@ -136,8 +199,7 @@ def update_bone_display(scene, ipc_model):
     if node.GetAttribute(BONE_SOURCE_ATTRIBUTE) != source:
         _show_bone_source(scene, node, True)  # the IPC it was made from, if another
         node.SetAttribute(BONE_SOURCE_ATTRIBUTE, source)
-        shown = bone_display_surface(surface)
-        deviation = surface_deviation_mm(shown, surface)
+        shown, deviation = cached_display_copy(surface)
         usable = deviation <= BONE_DISPLAY_TOLERANCE_MM
         logger.log(
             logging.INFO if usable else logging.WARNING,

@@ -1,0 +1,108 @@
+"""A CT phantom built once and read back: ``ramsicp web --demo`` and the demo scenes start from the same phantom
+every time, and rendering it takes 15-40 s (``ct_phantom.make_ct_phantom``), reading it back under a second.
+
+The cache is one ``.npz`` file per phantom in the user's cache folder (``cache_directory``), named by a key: the
+SHA-256 of what the phantom depends on, i.e. the generator (``GENERATOR_VERSION`` and the source of the
+``simulation`` package, so any change to how phantoms are drawn builds a new one), the bone mesh, the patient's
+reference body pose and marker geometry, the seed and the options. A file is written whole or not at all
+(``io.atomic_files``); one that cannot be read, or holds no valid volume, is built again and replaced. A cache
+that cannot be written (read-only home, full disk) costs only the time: the phantom is still returned.
+"""
+
+import hashlib
+import logging
+import os
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..image.volume_io import check_volume
+from ..io.atomic_files import atomic_path
+
+logger = logging.getLogger(__name__)
+
+#: Raise when the phantom's meaning changes without a change to the simulation package's source (a data file).
+GENERATOR_VERSION = 1
+#: Environment variable naming the cache folder (tests, read-only homes); else the platform's user cache folder.
+CACHE_ENVIRONMENT = "RAMSICP_CACHE_DIR"
+APPLICATION = "ramsicp-navigator"
+
+
+def cache_directory():
+    """The folder cached phantoms live in: ``$RAMSICP_CACHE_DIR``, else the user's cache folder (XDG on Linux,
+    ``~/Library/Caches`` on macOS, ``%LOCALAPPDATA%`` on Windows) / ``ramsicp-navigator``."""
+    chosen = os.environ.get(CACHE_ENVIRONMENT)
+    if chosen:
+        return Path(chosen)
+    if sys.platform == "win32":
+        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / APPLICATION
+
+
+def _generator_sources():
+    """The simulation package's Python sources, sorted by name: what draws a phantom."""
+    folder = Path(__file__).resolve().parent
+    return [(path.name, path.read_bytes()) for path in sorted(folder.glob("*.py"))]
+
+
+def phantom_key(patient, vertices, triangles, seed, options):
+    """Hex SHA-256 of everything a phantom depends on (see the module's docstring)."""
+    digest = hashlib.sha256(f"ramsicp ct phantom v{GENERATOR_VERSION}".encode())
+    for name, source in _generator_sources():
+        digest.update(name.encode())
+        digest.update(source)
+    for array in (vertices, triangles, patient.reference_to_image, patient.markers_reference):
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype.str}{array.shape}".encode())
+        digest.update(array.tobytes())
+    digest.update(repr((int(seed), sorted(options.items()))).encode())
+    return digest.hexdigest()
+
+
+def cached_ct_phantom(patient, vertices, triangles, seed=0, directory=None, **options):
+    """The CTVolume of ``make_ct_phantom(patient, vertices, triangles, seed=seed, **options)``, read from the cache
+    when a valid copy is there, else built and written to it.
+
+    Args:
+        directory: the cache folder (default ``cache_directory()``).
+        options: make_ct_phantom's keyword options (plain values: they are part of the key).
+
+    Returns:
+        (CTVolume, built): ``built`` is True when the phantom was rendered now, False when it was read.
+    """
+    from .ct_phantom import make_ct_phantom
+
+    directory = cache_directory() if directory is None else Path(directory)
+    path = directory / f"ct-phantom-{phantom_key(patient, vertices, triangles, seed, options)[:32]}.npz"
+    volume = _read(path)
+    if volume is not None:
+        return volume, False
+    volume, _ = make_ct_phantom(patient, vertices, triangles, seed=seed, **options)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as temporary, open(temporary, "wb") as stream:
+            np.savez(stream, voxels=volume.voxels, ijk_to_ras=volume.ijk_to_ras)
+    except OSError as error:
+        logger.warning("the CT phantom could not be cached in %s (%s); it will be built again next time", path, error)
+    return volume, True
+
+
+def _read(path):
+    """The CTVolume in ``path``, or None when there is none or it is damaged (then it is rebuilt)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            volume = check_volume(stored["voxels"], stored["ijk_to_ras"], name=f"cached phantom {path.name}")
+        if not np.isfinite(volume.voxels).all():
+            raise ValueError("it holds non-finite voxels")
+        return volume
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+        logger.warning("the cached CT phantom %s is damaged (%s): building it again", path, error)
+        return None
