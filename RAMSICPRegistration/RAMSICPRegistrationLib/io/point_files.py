@@ -241,12 +241,12 @@ def _read_text(path):
             continue
         separator = next((mark for mark in (";", "\t") if mark in stripped), "," if "," in stripped else None)
         words = stripped.split()
-        if separator == "," and len(words) > 1 and all(_DECIMAL_COMMA.fullmatch(w) or _is_number(w) for w in words):
+        if separator == "," and len(words) > 1 and all(_DECIMAL_COMMA.fullmatch(w) or is_number(w) for w in words):
             separator = " "  # "1,5 -2,25 3": columns by spaces, decimal commas
         fields = [value.strip() for value in (words if separator in (None, " ") else stripped.split(separator))]
         if separator in (";", "\t", " "):
             fields = [value.replace(",", ".") if _DECIMAL_COMMA.fullmatch(value) else value for value in fields]
-        if columns is None and not points and not any(_is_number(value) for value in fields if value):
+        if columns is None and not points and not any(is_number(value) for value in fields if value):
             columns, stated = _header_columns(path, line_number, fields)
             space = stated or space
             continue
@@ -276,7 +276,8 @@ def _read_text(path):
     return points, labels if any(labels) else None, space
 
 
-def _is_number(text):
+def is_number(text):
+    """Whether ``text`` reads as a number (float)."""
     try:
         float(text)
     except ValueError:

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .point_files import is_number
+
 #: How far (max element of R^T R - I) a rotation may be from orthonormal: trackers write 4 to 10 decimals.
 RIGID_TOLERANCE = 1e-3
 TABLE_SUFFIXES = (".csv", ".txt", ".tsv")
@@ -103,7 +105,7 @@ def read_pose_table(path):
         if not text or text.startswith("#"):
             continue
         fields = [value for value in _SEPARATORS.split(text) if value]
-        if not rows and time_column is None and not _is_number(fields[0]):
+        if not rows and time_column is None and not is_number(fields[0]):
             names = [name.strip().strip('"').lower() for name in fields]
             time_column = next((names.index(name) for name in _TIME_COLUMNS if name in names), -1)
             continue
@@ -142,11 +144,3 @@ def _numbers(text, where):
         except ValueError:
             raise ValueError(f"{where}: {value[:30]!r} is not a number") from None
     return values
-
-
-def _is_number(text):
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mrml_nodes import fiducial_positions
+from .mrml_nodes import fiducial_positions, glyph_fiducial_node
 
 #: Seconds of tip frames a held tip averages (the tip rests in the checkpoint while the button is pressed).
 HOLD_S = 0.5
@@ -140,14 +140,7 @@ def checkpoint_node(scene, parameters, reference_to_image):
     its points, in reference coordinates, are drawn on the bone in the CT."""
     node = parameters.checkpoints
     if node is None:
-        node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", NODE_NAME)
-        node.CreateDefaultDisplayNodes()
-        display = node.GetDisplayNode()
-        display.SetSelectedColor(*COLOUR)
-        display.SetColor(*COLOUR)
-        display.SetGlyphTypeFromString("Diamond3D")
-        display.SetUseGlyphScale(False)
-        display.SetGlyphSize(4.0)
+        node = glyph_fiducial_node(scene, NODE_NAME, "Diamond3D", 4.0, COLOUR)
         parameters.checkpoints = node
     if reference_to_image is not None and node.GetTransformNodeID() != reference_to_image.GetID():
         node.SetAndObserveTransformNodeID(reference_to_image.GetID())

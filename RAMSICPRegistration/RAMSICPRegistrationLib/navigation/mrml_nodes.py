@@ -76,14 +76,24 @@ def polyline_model(scene, points, name):
     return node
 
 
-def fiducial_node(scene, centres, labels=None, name="Marker centres (image)"):
-    """Add a ``vtkMRMLMarkupsFiducialNode`` of marker centres (K, 3) RAS, drawn as 11.5 mm spheres."""
+def glyph_fiducial_node(scene, name, glyph="Sphere3D", size_mm=MARKER_DIAMETER_MM, colour=None):
+    """Add an empty ``vtkMRMLMarkupsFiducialNode`` whose points are drawn as ``glyph`` of ``size_mm`` (absolute size,
+    not scaled with the view), in ``colour`` (r, g, b in 0-1) when given, selected or not."""
     node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", name)
     node.CreateDefaultDisplayNodes()
     display = node.GetDisplayNode()
-    display.SetGlyphTypeFromString("Sphere3D")
+    if colour is not None:
+        display.SetSelectedColor(*colour)
+        display.SetColor(*colour)
+    display.SetGlyphTypeFromString(glyph)
     display.SetUseGlyphScale(False)
-    display.SetGlyphSize(MARKER_DIAMETER_MM)
+    display.SetGlyphSize(size_mm)
+    return node
+
+
+def fiducial_node(scene, centres, labels=None, name="Marker centres (image)"):
+    """Add a ``vtkMRMLMarkupsFiducialNode`` of marker centres (K, 3) RAS, drawn as 11.5 mm spheres."""
+    node = glyph_fiducial_node(scene, name)
     labels = labels or [f"M{number + 1}" for number in range(len(centres))]
     for centre, label in zip(np.asarray(centres, dtype=np.float64), labels):
         node.AddControlPoint(centre.tolist(), label)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.touch_guidance import touch_guidance
+from .mrml_nodes import glyph_fiducial_node
 from .navigation import points_of
 
 #: A touch within this distance (mm) of the suggestion is taken by guided collection (the prediction hardly changes
@@ -104,14 +105,7 @@ def draw(scene, parameters, guidance):
     if node is None:
         if guidance is None:
             return None
-        node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", NODE_NAME)
-        node.CreateDefaultDisplayNodes()
-        display = node.GetDisplayNode()
-        display.SetSelectedColor(*COLOUR)
-        display.SetColor(*COLOUR)
-        display.SetGlyphTypeFromString("Sphere3D")
-        display.SetUseGlyphScale(False)
-        display.SetGlyphSize(GLYPH_MM)
+        node = glyph_fiducial_node(scene, NODE_NAME, "Sphere3D", GLYPH_MM, COLOUR)
         parameters.nextTouch = node
     node.RemoveAllControlPoints()
     if guidance is not None:
