@@ -1,5 +1,7 @@
 """The predicted error's distribution (``core.error_prediction``): known distributions, then coverage on trials."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -134,3 +136,27 @@ def test_pose_uncertainty_from_a_fit_with_a_known_fle_has_no_dof(tibia_patient, 
     result = register(tibia_index, trial.ppc, trial.markers_image, trial.markers_patient, fle_mm=0.5)
     assert isinstance(result.uncertainty, PoseUncertainty) and result.uncertainty.marker_dof is None
     assert result.predicted_tre_95_mm is None  # no targets, no prediction at them
+
+
+def test_other_modes_add_their_second_moment_about_the_chosen_pose():
+    """M2 by hand: a mode a quarter of the posterior holds, 4 mm along x, adds 0.25 x 16 mm^2 along x at every
+    point; a mode turned by 90 degrees about z through the origin moves (10, 0, 0) to (0, 10, 0): an offset
+    (-10, 10, 0), and leaves the origin where it is."""
+    from RAMSICPRegistrationLib.core.transforms import make_transform
+
+    base = PoseUncertainty(
+        covariance=np.zeros((6, 6)),
+        centre_mm=np.zeros(3),
+        marker_information=np.zeros((6, 6)),
+        surface_information=np.eye(6),
+    )
+    points = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    slid = replace(base, mode_weights=np.array([0.25]), mode_motions=make_transform(np.eye(3), [4.0, 0, 0])[None])
+    expected = np.zeros((2, 3, 3))
+    expected[:, 0, 0] = 4.0
+    np.testing.assert_allclose(slid.errors_at(points).covariances, expected, atol=1e-12)
+    assert slid.errors_at(points).rms_mm == pytest.approx([2.0, 2.0])
+    turn = make_transform(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3))
+    turned = replace(base, mode_weights=np.array([0.5]), mode_motions=turn[None]).errors_at(points)
+    np.testing.assert_allclose(turned.covariances[0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(turned.covariances[1], 0.5 * np.outer([-10.0, 10.0, 0.0], [-10.0, 10.0, 0.0]))

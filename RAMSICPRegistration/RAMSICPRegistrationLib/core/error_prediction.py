@@ -25,6 +25,10 @@ the FRE's estimate of FLE^2 is unbiased, so they take ``rho = 1``, but a fit who
 errs more than ``C`` says (``C`` is the least error, at the right weight), so they add the mean excess E3
 (``_weighting_bias``): the predicted error's covariance is ``A (C + B) A^T``. An FLE given by the user is taken as
 known (``rho = 1``, no E3); an FRE below the floor (F2) leaves ``rho`` at least 1.
+
+A few probe points may fit other poses as well (other minima of F1): ``core.pose_modes`` finds them and their
+shares of the posterior, and every part here adds their second moment about the chosen pose (M2) to ``S``, as a
+part that does not scale with the FLE.
 """
 
 from dataclasses import dataclass, replace
@@ -55,6 +59,8 @@ class PoseUncertainty:
             floor (F2) was used instead.
         fle_ratio_floor: the smallest ``rho`` (E2): 1 when the FLE is the floor, else 0.
         surface_sigma_mm: RMS point-to-surface noise of one probe touch the fit assumed (F3), for a new touch.
+        mode_weights, mode_motions: (M,) and (M, 4, 4) the other minima of F1 and their shares of the posterior
+            (``core.pose_modes``, M1), or None when none were searched for.
     """
 
     covariance: np.ndarray
@@ -65,6 +71,8 @@ class PoseUncertainty:
     fle_estimate_ratio: float = 1.0
     fle_ratio_floor: float = 0.0
     surface_sigma_mm: float = np.inf
+    mode_weights: np.ndarray = None
+    mode_motions: np.ndarray = None
 
     @classmethod
     def from_fit(cls, fit, marker_count=None, fre_fle_mm=None):
@@ -103,7 +111,12 @@ class PoseUncertainty:
         bias = self.weighting_bias
         if bias is not None:
             bias = np.einsum("tij,jk,tlk->til", jacobians, bias, jacobians)
-        return PredictedErrors(markers, surface, self.marker_dof, self.fle_estimate_ratio, self.fle_ratio_floor, bias)
+        modes = None
+        if self.mode_weights is not None and len(self.mode_weights):
+            modes = _mode_covariances(points, self.mode_weights, self.mode_motions)
+        return PredictedErrors(
+            markers, surface, self.marker_dof, self.fle_estimate_ratio, self.fle_ratio_floor, bias, modes
+        )
 
     def with_touches(self, points_image, normals, sigma_mm=None):
         """The uncertainty after probe touches at (N, 3) image points on the surface with unit normals (N, 3), each
@@ -131,12 +144,19 @@ class PredictedErrors:
     fle_estimate_ratio: float = 1.0
     fle_ratio_floor: float = 0.0
     bias: np.ndarray = None
+    modes: np.ndarray = None
 
     @property
     def covariances(self):
-        """(T, 3, 3) mean covariance of each point's error vector (rho = 1, with E3's excess), mm^2."""
-        total = self.markers + self.surface
+        """(T, 3, 3) mean covariance of each point's error vector (rho = 1, with E3's excess and the other modes'
+        second moment, M2 of ``core.pose_modes``), mm^2."""
+        total = self._fixed + self.markers
         return total if self.bias is None else total + self.bias
+
+    @property
+    def _fixed(self):
+        """(T, 3, 3) the part that does not scale with the markers' FLE: the probe points' and the other modes'."""
+        return self.surface if self.modes is None else self.surface + self.modes
 
     @property
     def rms_mm(self):
@@ -163,7 +183,7 @@ class PredictedErrors:
         from scipy import stats
 
         ratios, _ = self._ratios()
-        total = np.trace(self.surface, axis1=1, axis2=2) + np.trace(self.markers, axis1=1, axis2=2) * ratios.max()
+        total = np.trace(self._fixed, axis1=1, axis2=2) + np.trace(self.markers, axis1=1, axis2=2) * ratios.max()
         low, high = np.zeros(len(self.markers)), 10.0 * np.sqrt(np.maximum(total, 1e-24))
         variance = np.maximum(np.trace(self.covariances, axis1=1, axis2=2), 1e-24)
         guess = np.sqrt(variance / 3.0 * stats.chi2.ppf(probability, 3))
@@ -185,7 +205,7 @@ class PredictedErrors:
 
         limits = np.broadcast_to(np.asarray(limits_mm, dtype=np.float64), (len(self.markers),))
         ratios, weights = self._ratios()  # (Q,)
-        markers, surface = _direction_variances(self.markers), _direction_variances(self.surface)  # (T, M)
+        markers, surface = _direction_variances(self.markers), _direction_variances(self._fixed)  # (T, M)
         spread = surface[:, None, :] + ratios[None, :, None] * markers[:, None, :]  # (T, Q, M)
         with np.errstate(divide="ignore", invalid="ignore"):
             half = np.where(spread > 0.0, 0.5 * limits[:, None, None] ** 2 / spread, np.inf)
@@ -223,6 +243,13 @@ def _weighting_bias(marker_information, surface_information, marker_dof):
         actual = covariance @ (scale**2 * marker_information + surface_information) @ covariance
         bias += weight * (actual - covariance)
     return bias
+
+
+def _mode_covariances(points, weights, motions):
+    """(T, 3, 3) the other modes' second moment about the chosen pose at (T, 3) image points (M2 of
+    ``core.pose_modes``): ``sum_k w_k o_k o_k^T``, ``o_k = D_k y - y`` with ``D_k`` (M, 4, 4) and ``w_k`` (M,), mm^2."""
+    offsets = np.einsum("mij,tj->mti", motions[:, :3, :3], points) + motions[:, None, :3, 3] - points  # (M, T, 3)
+    return np.einsum("m,mti,mtj->tij", weights, offsets, offsets)
 
 
 def _direction_variances(covariances):

@@ -5,7 +5,7 @@ errors and warnings.
 """
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -25,6 +25,7 @@ from .icp import DEFAULT_MIN_RADIUS_MM, icp, ramsicp
 from .metrics import fle_from_fre, predicted_tre, surface_residuals, target_errors
 from .paired_point import fit_rigid_transform
 from .plane_icp import icp_point_to_plane
+from .pose_modes import other_modes, searched
 from .surface_index import SurfaceIndex
 from .sweep import PAPER_SCALES, sweep_scales
 from .transforms import apply_transform
@@ -358,6 +359,9 @@ def register(
     if fused is not None:
         fre_fle = fle_from_fre(coarse.fre_mm, len(coarse.residuals_mm))
         uncertainty = PoseUncertainty.from_fit(fused, None if fle_mm is not None else len(coarse.residuals_mm), fre_fle)
+        if searched(fused, len(ppc)):  # a few touches may fit elsewhere as well: the prediction counts those poses
+            shares, motions = other_modes(fused, index, ppc, markers_patient, markers_image)
+            uncertainty = replace(uncertainty, mode_weights=shares, mode_motions=motions)
     if targets_patient is not None:
         errors = target_errors(transform, targets_patient, targets_image)
         tre = float(np.sqrt(np.mean(errors**2)))
