@@ -41,6 +41,8 @@ MIN_BONE_MM3 = 1500.0
 MIN_HALF_THICKNESS_MM = 2.0
 #: A cortex: the rim at least this much brighter (HU) than the inside.
 CORTEX_CONTRAST_HU = 150.0
+#: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
+MIN_CORE_MM3 = 100.0
 #: Opening radii (mm) tried to cut a bracket off the bone, smallest first.
 OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
 #: The bracket, as the bone's core grows it out of the bone kept so far, crosses the band ROD_FROM_MM to ROD_TO_MM
@@ -97,12 +99,35 @@ def recognise_bone(volume, segmentation, spheres):
     Raises:
         ValueError: no object is plausibly bone; the message lists what was found.
     """
+    plain = _body_seeds(volume, segmentation, spheres, dim_links=False)
+    if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain):
+        return _recognise(volume, segmentation, plain)  # no object the dim parts could reach but the body's own
     try:
         return _recognise(volume, segmentation, _body_seeds(volume, segmentation, spheres))
     except ValueError:
         # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
         # with the spheres and their posts' feet alone.
-        return _recognise(volume, segmentation, _body_seeds(volume, segmentation, spheres, dim_links=False))
+        return _recognise(volume, segmentation, plain)
+
+
+def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds):
+    """True when an object large enough to be bone and holding no seed lies within DIM_BODY_REACH_MM of the
+    spheres' box: only then can dim posts or a dim frame lead to it (``_dim_links``), which is worth the look."""
+    if not spheres:
+        return False
+    centres = volume.ras_to_ijk_points(np.array([sphere.centre for sphere in spheres])) - segmentation.origin
+    reach = (DIM_BODY_REACH_MM + MARKER_DIAMETER_MM) / volume.spacing
+    low, high = centres.min(axis=0) - reach, centres.max(axis=0) + reach
+    voxel_mm3 = float(np.prod(volume.spacing))
+    for label, region in enumerate(ndimage.find_objects(segmentation.labels), start=1):
+        if region is None or seeds.get(label) or label not in segmentation.object_labels:
+            continue
+        if np.prod([s.stop - s.start for s in region]) * voxel_mm3 < MIN_BONE_MM3:
+            continue
+        start, stop = np.array([s.start for s in region]), np.array([s.stop for s in region])
+        if (start <= high).all() and (stop >= low).all():
+            return True
+    return False
 
 
 def _recognise(volume, segmentation, held):
@@ -205,6 +230,11 @@ def _dim_links(volume, segmentation, spheres):
     """
     if not spheres:
         return []
+    sizes_all = np.bincount(segmentation.labels.ravel())
+    voxel_mm3 = float(np.prod(volume.spacing))
+    own = [s.label for s in spheres if s.label > 0 and sizes_all[s.label] * voxel_mm3 <= SPHERE_ON_POST_MM3]
+    if not own and not any(_dim_next_to(volume, segmentation, sphere) for sphere in spheres):
+        return []  # nothing dim leaves any sphere: no dim post, no plastic sphere
     centres = np.array([sphere.centre for sphere in spheres])
     origin, shape = segmentation.origin, np.array(segmentation.labels.shape)
     ijk = volume.ras_to_ijk_points(centres) - origin
@@ -232,9 +262,6 @@ def _dim_links(volume, segmentation, spheres):
     # ... or at the end of a sphere's own bright object within a post's length of it (a bright post on a dim frame).
     # (Only a small object: a sphere on its post. When the sphere's object is large, bone and body are one object
     # already, and its cells would start the dim parts in the soft tissue round the bone.)
-    sizes_all = np.bincount(segmentation.labels.ravel())
-    voxel_mm3 = float(np.prod(volume.spacing))
-    own = [s.label for s in spheres if s.label > 0 and sizes_all[s.label] * voxel_mm3 <= SPHERE_ON_POST_MM3]
     if own:
         own_cells = _block_max(np.isin(segmentation.labels[box], own), block)
         start |= ndimage.binary_dilation(own_cells, iterations=2) & posts
@@ -292,6 +319,23 @@ def _post_feet(volume, segmentation, spheres):
             if len(hit) and (len(air) == 0 or hit[0] < air[0]):
                 feet.append((int(labels[hit[0]]), points[hit[0]]))
     return feet
+
+
+def _dim_next_to(volume, segmentation, sphere):
+    """True when dim voxels (DIM_BODY_HU up to the threshold) lie 1 to 2.5 mm beyond a sphere's surface, clear of the
+    blurred rim of anything above the threshold: a dim post or frame leaves it (or the sphere itself is dim)."""
+    reach = sphere.radius_mm + 2.5
+    local, ras = _labels_near(volume, segmentation, sphere.centre, reach)
+    if local is None:
+        return False
+    box, _ = volume.voxels_within(sphere.centre - reach, sphere.centre + reach)
+    low = np.maximum(np.array([s.start for s in box]) - segmentation.origin, 0)
+    values = segmentation.smoothed[tuple(slice(a, a + n) for a, n in zip(low, local.shape))]
+    steps = int(np.ceil(DIM_CELL_MM / float(volume.spacing.min())))
+    clear = ~ndimage.binary_dilation(local > 0, iterations=steps) if (local > 0).any() else np.ones(local.shape, bool)
+    distance = np.linalg.norm(ras - sphere.centre, axis=-1)
+    shell = (distance >= sphere.radius_mm + 1.0) & (distance <= reach)
+    return bool((shell & clear & (values >= DIM_BODY_HU)).any())
 
 
 def _labels_at(volume, segmentation, points):
@@ -381,8 +425,10 @@ class _ObjectShape:
             sizes = np.bincount(cores.ravel(), minlength=count + 1)
             sizes[0] = 0
             for core in np.argsort(-sizes)[: min(3, count)]:
+                if sizes[core] * np.prod(self.cell) < MIN_CORE_MM3:
+                    break  # the opening of a core this small is no bone
                 part = cores == core
-                if not part.any() or _reaches(cells[part], centres, reaches + opening):
+                if _reaches(cells[part], centres, reaches + opening):
                     continue
                 opened = rest & (ndimage.distance_transform_edt(~part, sampling=self.cell) <= opening)
                 if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3:

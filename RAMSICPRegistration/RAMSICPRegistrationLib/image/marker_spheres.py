@@ -46,7 +46,8 @@ from .sphere_candidates import find_sphere_candidates
 logger = logging.getLogger(__name__)
 
 RADIUS_TOLERANCE_MM = 0.6
-#: A sphere whose clean edges lie off it (outliers of the fit) on more than this fraction of its rays is partial.
+#: A sphere whose clean edges lie off it (outliers of the fit) on more than this fraction of its rays is partial
+#: (twice this when at least 90 % of its surface is seen: a thick post's junction puts some edges off).
 MAX_OFF_SPHERE = 0.08
 RESIDUAL_LIMIT_MM = 0.2
 COVERAGE_LIMIT = 0.85
@@ -400,7 +401,7 @@ def _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere):
     if cut_by_field_of_view(volume, centre, radius):
         return "partial", f"cut by the edge of the field of view, {100 * coverage:.0f} % of its surface seen"
     round_enough = abs(fitted_radius - radius) <= RADIUS_TOLERANCE_MM and rms <= RESIDUAL_LIMIT_MM
-    if round_enough and off_sphere > MAX_OFF_SPHERE:
+    if round_enough and off_sphere > MAX_OFF_SPHERE * (2.0 if coverage >= 0.9 else 1.0):
         # Clean edges that are not on the sphere: a cap cut off (Fig. 4a), a dent; its centre may have moved.
         return "partial", f"{100 * off_sphere:.0f} % of the edge found lies off the sphere (a cap missing?)"
     if round_enough and coverage >= COVERAGE_LIMIT:
