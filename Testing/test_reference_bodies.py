@@ -1,6 +1,8 @@
 """Marker centres on real reference bodies (issue 12): spheres fused to bright posts and frames, metal streaks,
 low-dose noise, a turned scanner grid, a sphere cut by the field of view. True centres come from the generator."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -145,7 +147,7 @@ def test_pin_through_the_shaft_leaves_no_metal_or_streak_in_the_ipc():
     assert [(sphere.number, sphere.status) for sphere in image.spheres] == [(n, "ok") for n in (1, 2, 3, 4)]
 
 
-def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium):
+def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium, tmp_path, capsys):
     """Marker 3's sphere blanked out: the other three are paired by the tool's distances and marker 3's centre is
     expected where they put it, inside the field of view."""
     volume, truth, _ = aluminium
@@ -154,7 +156,8 @@ def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium):
     low = np.floor(volume.ras_to_ijk_points(centre[None])[0] - 16).astype(int)
     grid = np.argwhere(np.ones((33, 33, 33), dtype=bool)) + low
     voxels[tuple(grid[np.linalg.norm(volume.ijk_to_ras_points(grid) - centre, axis=1) < RADIUS + 0.8].T)] = -1000
-    image = process_ct(type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras), tool_markers=TOOL)
+    blanked = type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
+    image = process_ct(blanked, tool_markers=TOOL)
     assert [sphere.number for sphere in image.usable] == [1, 2, 4]
     (missing,) = image.missing
     assert missing.number == 3 and missing.in_field_of_view
@@ -162,6 +165,23 @@ def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium):
     assert any(
         warning.startswith("marker 3 not found: the other markers put its centre at") for warning in image.warnings
     )
+    # ramsicp ipc prints where it is expected and puts it in the JSON, with the pairing.
+    save_nrrd(tmp_path / "ct.nrrd", blanked)
+    arguments = [
+        "ipc",
+        str(tmp_path / "ct.nrrd"),
+        "--out",
+        str(tmp_path / "ipc.vtp"),
+        "--json",
+        str(tmp_path / "i.json"),
+    ]
+    assert main(arguments) == 0
+    printed = capsys.readouterr().out
+    assert "marker 3         not found; the other markers put it at (" in printed and "inside the CT" in printed
+    document = json.loads((tmp_path / "i.json").read_text(encoding="utf-8"))
+    (entry,) = document["missing_markers"]
+    assert entry["number"] == 3 and np.linalg.norm(np.array(entry["expected"]) - centre) < 0.05
+    assert document["pairing"]["indices"][2] == -1 and document["bone"]["reference_body_cut_off"] is False
 
 
 def test_a_rod_or_a_frame_alone_is_no_marker(aluminium):

@@ -6,8 +6,9 @@ noise, blur, streaks, fields of view that cut spheres). Each CT is scored agains
 import numpy as np
 import pytest
 
+from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
-from RAMSICPRegistrationLib.image.volume_io import CTVolume
+from RAMSICPRegistrationLib.image.volume_io import CTVolume, save_nrrd
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.ct_painting import ReferenceBodyModel
 from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
@@ -111,7 +112,7 @@ def test_plastic_spheres_below_the_bone_threshold_are_found():
     assert all(sphere.label == 0 or sphere.status == "ok" for sphere in image.usable)
 
 
-def test_a_ct_without_a_bone_is_refused_with_what_was_found():
+def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
     volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
     grid = np.argwhere(np.ones(volume.voxels.shape, dtype=bool))
@@ -122,6 +123,12 @@ def test_a_ct_without_a_bone_is_refused_with_what_was_found():
     with pytest.raises(ValueError, match="no object in the CT's field of view is plausibly bone") as refusal:
         process_ct(CTVolume(voxels, volume.ijk_to_ras), tool_markers=tool_marker_geometry())
     assert "reference body" in str(refusal.value) and "holds" in str(refusal.value)
+    # The command line says it in one line and exits 2, writing no IPC.
+    save_nrrd(tmp_path / "ct.nrrd", CTVolume(voxels, volume.ijk_to_ras))
+    assert main(["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "no object in the CT's field of view is plausibly bone" in error and "\n" not in error
+    assert not (tmp_path / "ipc.vtp").exists()
 
 
 def test_overrides_force_one_choice_and_leave_the_others():

@@ -65,6 +65,16 @@ class ObjectVerdict:
     spheres: int
     verdict: str
 
+    def to_dict(self):
+        return {
+            "label": self.label,
+            "volume_mm3": self.volume_mm3,
+            "thickness_mm": 2.0 * self.half_thickness_mm,
+            "cortex_hu": self.cortex_hu,
+            "reference_body_contacts": self.spheres,
+            "verdict": self.verdict,
+        }
+
     def describe(self):
         if self.cortex_hu is None:
             cortex = "no inside to tell a cortex"
@@ -457,7 +467,7 @@ class _ObjectShape:
             bone = rest & ~apart & (ndimage.distance_transform_edt(~part, sampling=self.cell) <= opening)
         bone = self._with_thin_bits(bone, rest & ~apart, near_sphere | apart)
         verdict = self.verdict(0, bone, ndimage.distance_transform_edt(bone, sampling=self.cell))
-        if not verdict.verdict.startswith("bone"):
+        if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
             return self.verdict(len(seeds)), None
         logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
         # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell

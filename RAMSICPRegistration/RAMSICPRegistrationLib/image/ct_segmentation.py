@@ -381,7 +381,7 @@ def _enclosed(image, levels, walls, low, high, volume):
 def _next_to_body(volume, segmentation, vertices_ijk):
     """(M,) booleans: IPC vertices (indices in the segmentation's box) within ``body_margin_mm`` of the voxels of
     the reference body joined to the bone (its bracket's stub, and the corner the blur fills round it)."""
-    if segmentation.body is None or not segmentation.body.any():
+    if segmentation.body is None or not segmentation.body.any() or len(vertices_ijk) == 0:
         return np.zeros(len(vertices_ijk), dtype=bool)
     from scipy.spatial import cKDTree
 
