@@ -5,7 +5,8 @@ side runs on it with the drawn tool's geometry, and the result is scored against
 
 * spheres: the wholly visible ones given usable with their marker's number within 0.15 mm (target >= 99 %), the
   usable ones farther than that from their marker (false: target 0), the ones cut by the field of view given
-  usable (target 0);
+  usable (target 0); visible spheres in CTs with fewer than 3 of the tool's spheres in view cannot be numbered by
+  the tool's distances and are counted apart (unpairable);
 * IPC: the share of its points within 0.5 mm of the true bone surface (target >= 99 %), those on the reference
   body or its bracket (target 0), and how much of the bone surface in view it covers; CTs refused.
 
@@ -25,7 +26,7 @@ from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.reference_ct_family import make_family_ct, score_image_side
 
-FIELDS = ("visible", "found", "false", "cut", "cut_usable", "ipc_points", "ipc_on_bone", "ipc_on_body")
+FIELDS = ("visible", "found", "false", "cut", "cut_usable", "ipc_points", "ipc_on_bone", "ipc_on_body", "unpairable")
 
 
 def run_seed(seed, profile):
@@ -48,7 +49,8 @@ def table_row(name, scores):
         f"{name:<28} {len(scores):>5} {total['found']:>5}/{total['visible']:<5} "
         f"{100 * total['found'] / max(total['visible'], 1):6.1f} {total['false']:>5} "
         f"{total['cut_usable']:>3}/{total['cut']:<4} {100 * total['ipc_on_bone'] / max(total['ipc_points'], 1):7.2f} "
-        f"{total['ipc_on_body']:>8} {100 * clean / len(scores):6.1f} {100 * coverage:6.1f} {refused:>4}"
+        f"{total['ipc_on_body']:>8} {100 * clean / len(scores):6.1f} {100 * coverage:6.1f} {refused:>4} "
+        f"{total['unpairable']:>5}"
     )
 
 
@@ -83,7 +85,7 @@ def main():
             misses.append((seed, score))
     print(
         f"\n{'CTs':<28} {'n':>5} {'found/visible':>11} {'%':>6} {'false':>5} {'cut used':>8} {'IPC %on':>7} "
-        f"{'on body':>8} {'%CT>=99':>6} {'cover%':>6} {'ref':>4}"
+        f"{'on body':>8} {'%CT>=99':>6} {'cover%':>6} {'ref':>4} {'unpair':>5}"
     )
     for name in sorted(groups, key=lambda name: (name != "all", name)):
         print(table_row(name, groups[name]))

@@ -584,8 +584,10 @@ class FamilyScore:
     """How an image side did on one family CT.
 
     Attributes:
-        visible: wholly visible spheres; found: those given usable, with their marker's number, within
-            ``FOUND_WITHIN_MM``; false: usable spheres farther than that from their marker's true centre;
+        visible: wholly visible spheres, in CTs that hold at least 3 of the tool's spheres (fewer cannot be told
+            apart by the tool's distances, so none can be numbered: those are ``unpairable``); found: those given
+            usable, with their marker's number, within ``FOUND_WITHIN_MM``; false: usable spheres farther than that
+            from their marker's true centre;
             cut: spheres cut by the field of view; cut_usable: cut spheres given usable.
         ipc_points, ipc_on_bone: IPC points, and those within ``ON_BONE_MM`` of the true bone surface;
         ipc_on_body: IPC points off the bone and within 1 mm of the reference body or its bracket.
@@ -604,6 +606,7 @@ class FamilyScore:
     ipc_on_body: int
     coverage: float
     refused: str = ""
+    unpairable: int = 0
 
 
 def score_image_side(volume, truth, image=None, refused=""):
@@ -611,8 +614,12 @@ def score_image_side(volume, truth, image=None, refused=""):
     from scipy.spatial import cKDTree
 
     visible, cut = truth.visible, truth.cut
+    in_view = sum(state in ("visible", "edge", "hidden") for state in truth.marker_states)
+    unpairable = 0
+    if in_view < 3:
+        unpairable, visible = int(visible.sum()), np.zeros_like(visible)
     if image is None:
-        return FamilyScore(int(visible.sum()), 0, 0, int(cut.sum()), 0, 0, 0, 0, 0.0, refused)
+        return FamilyScore(int(visible.sum()), 0, 0, int(cut.sum()), 0, 0, 0, 0, 0.0, refused, unpairable)
     found = false = cut_usable = 0
     for sphere in image.usable:
         error = np.linalg.norm(sphere.centre - truth.marker_centres[sphere.number - 1])
@@ -637,4 +644,5 @@ def score_image_side(volume, truth, image=None, refused=""):
         ipc_on_bone=int(on_bone.sum()),
         ipc_on_body=int(on_body.sum()),
         coverage=float(np.mean(covered)) if len(surface) else 1.0,
+        unpairable=unpairable,
     )
