@@ -137,10 +137,14 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
 
 def reference_body_spheres(detection):
     """The spheres that make a reference body, for the bone's recognition: those paired with the tool when it could
-    be paired (a round bump of bone that fits a sphere is not one of them), else the clean ones if there are at
-    least 3 (a reference body has 3 markers or more; one sphere-like spot is no body)."""
+    be paired (a round bump of bone that fits a sphere is not one of them), else those at the tool's distances from
+    one another (``MarkerDetection.tied``: too few in view or too sunk into the frame to number, but the body's),
+    else the clean ones if there are at least 3 (a reference body has 3 markers or more; one sphere-like spot is
+    no body)."""
     if detection.pairing is not None:
         return [sphere for sphere in detection.spheres if sphere.number > 0]
+    if detection.tied:
+        return list(detection.tied)
     clean = [sphere for sphere in detection.spheres if sphere.status == "ok"]
     return clean if len(clean) >= 3 else []
 
@@ -263,12 +267,16 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
+    raw_box = tuple(slice(b.start + a, b.start + c) for b, a, c in zip(segmentation.box, low, high))
+    padding = outside_reconstruction(volume.voxels[raw_box])
     if fill_cavities:
         # Everything darker than the surface level that the bone encloses is its inside (marrow, cancellous bone,
         # noise holes): raising it removes the inner walls and leaves the outer edge alone. Other objects (a
         # bracket through the cortex, cut off the bone) are walls: the inside does not leak out along them.
         other = segmentation.labels[box] > 0
         other &= ~mask
+        if padding is not None:  # the field of view's round edge: where the scan cuts the bone, not its outside
+            other |= padding[:, :, None]
         inside = _enclosed(
             image,
             (level, segmentation.threshold_hu),
@@ -297,6 +305,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
             logger.info("%d IPC points on inner walls left out", int(inner.sum()))
+    if padding is not None:
+        capped = _near_padding(padding, vertices_ijk, volume.spacing)
+        if capped.any():
+            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
+            logger.info("%d IPC points on the field of view's round edge left out", int(capped.sum()))
     origin = segmentation.origin + low  # the crop's first voxel in the CT
     metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin)
     spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
@@ -316,6 +329,38 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         left_out=int(spoilt.sum()),
         left_out_body=int(by_body.sum()),
     )
+
+
+#: The reconstruction's padding is told from air over at least this many slices (a column of one value, the CT's
+#: lowest, in every slice: air has noise).
+PADDING_MIN_SLICES = 16
+#: IPC points closer than this (mm) to the padding lie on the cap the field of view's edge makes (the denoising
+#: blurs the padding's edge in).
+PADDING_MARGIN_MM = 1.5
+
+
+def outside_reconstruction(voxels):
+    """(I, J) booleans over a box of raw CT voxels (I, J, K): in-plane positions outside the reconstruction
+    cylinder, padded with one value at or below -1024 HU (the CT's lowest) in all of the box's slices; None when
+    there is none (or the box has too few slices to tell padding from air)."""
+    if voxels.shape[2] < PADDING_MIN_SLICES:
+        return None
+    lowest = voxels.min()
+    if lowest > -1024:
+        return None
+    # Column by column, a few slices first (most columns differ there), the rest only where they did not.
+    padding = (voxels[:, :, :: max(1, voxels.shape[2] // 8)] == lowest).all(axis=2)
+    if not padding.any():
+        return None
+    rows, columns = np.nonzero(padding)
+    padding[rows, columns] = (voxels[rows, columns, :] == lowest).all(axis=1)
+    return padding if padding.any() else None
+
+
+def _near_padding(padding, vertices, spacing):
+    """(M,) booleans: vertices (indices (M, 3) in the box) within PADDING_MARGIN_MM of the padding (I, J)."""
+    distance = ndimage.distance_transform_edt(~padding, sampling=spacing[:2])
+    return ndimage.map_coordinates(distance, vertices[:, :2].T, order=1, mode="nearest") <= PADDING_MARGIN_MM
 
 
 #: A surface point whose outside this far (mm, and at least a voxel) down the gradient is still the bone's is an

@@ -127,13 +127,16 @@ class MissingMarker:
 @dataclass(frozen=True)
 class MarkerDetection:
     """The marker spheres found, the number of candidates rejected, warnings; with a tool, its pairing
-    (``core.marker_geometry.GeometricPairing``, or None when fewer than 3 spheres fit it) and the markers missing."""
+    (``core.marker_geometry.GeometricPairing``, or None when fewer than 3 spheres fit it) and the markers missing.
+    ``tied``: when no 3 spheres could be paired, the spheres (clean or partial) that lie at one of the tool's
+    pairwise marker distances from another: the reference body's, though too few or too sunk in to number."""
 
     spheres: tuple
     warnings: tuple
     rejected: int = 0
     pairing: object = None
     missing: tuple = ()
+    tied: tuple = ()
 
     @property
     def ok_centres(self):
@@ -166,10 +169,13 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
         else:
             spheres.append(sphere)
     spheres = _without_duplicates(spheres, radius)
-    pairing, missing, warnings = None, (), []
+    pairing, missing, warnings, tied = None, (), [], ()
     if tool_markers is not None:
+        found = spheres
         spheres, pairing, missing, warnings, dropped = _pair_with_tool(volume, spheres, tool_markers, radius)
         rejected += dropped
+        if pairing is None:
+            tied = _tied_by_tool_distances(found, tool_markers)
     warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"] + warnings
     good = sum(sphere.status == "ok" and (tool_markers is None or sphere.number > 0) for sphere in spheres)
     if tool_markers is None and len(spheres) != expected:
@@ -182,7 +188,24 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
         warnings.append(f"only {good} of {expected} spheres are clean; the coarse registration needs at least 3")
     for warning in warnings:
         logger.info("marker detection: %s", warning)
-    return MarkerDetection(tuple(spheres), tuple(warnings), rejected, pairing, tuple(missing))
+    return MarkerDetection(tuple(spheres), tuple(warnings), rejected, pairing, tuple(missing), tuple(tied))
+
+
+def _tied_by_tool_distances(spheres, tool_markers):
+    """The spheres, clean or partial (not deformed), within PAIRING_TOLERANCE_MM of one of the tool's pairwise
+    marker distances from another such sphere: two of the tool's markers (a round bump of bone is not at the tool's
+    distance from a sphere of the marker's size), even when they cannot be numbered (fewer than 3 in view, or sunk
+    into the frame)."""
+    round_ones = [sphere for sphere in spheres if sphere.status != "deformed"]
+    markers = np.asarray(tool_markers, float)
+    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
+    tied = set()
+    for i, first in enumerate(round_ones):
+        for j in range(i + 1, len(round_ones)):
+            apart = float(np.linalg.norm(first.centre - round_ones[j].centre))
+            if np.abs(distances - apart).min() <= PAIRING_TOLERANCE_MM:
+                tied.update((i, j))
+    return tuple(round_ones[i] for i in sorted(tied))
 
 
 def sphere_warning(sphere):
