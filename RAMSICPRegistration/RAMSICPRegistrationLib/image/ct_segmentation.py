@@ -465,6 +465,10 @@ def fill_axis(mask, spacing):
     return int(np.argmax([(p[-1] - p[0] + 1) * s for p, s in zip(present, spacing)]))
 
 
+#: The blurred edge of metal reaches this far (mm) into what is round it.
+METAL_EDGE_MM = 2.5
+
+
 def _surface_level(image, mask, threshold, level, spacing):
     if level == "threshold":
         return threshold
@@ -475,8 +479,14 @@ def _surface_level(image, mask, threshold, level, spacing):
         return threshold
     # The cortex's brightness, read just beneath the blurred edge (1 to 4 voxels deep), metal left out.
     rim = ndimage.binary_erosion(mask, iterations=1) & ~ndimage.binary_erosion(mask, iterations=4)
+    metal = image >= METAL_HU
+    if metal.any():  # a pin or screw through the bone: its blurred edge, brighter than cortex, left out too
+        reach = int(np.ceil(METAL_EDGE_MM / float(spacing.min())))
+        rim &= ~ndimage.binary_dilation(metal, iterations=reach)
     rim_values = image[rim]
-    cortex = float(np.percentile(rim_values[rim_values < METAL_HU], 95))
+    if rim_values.size == 0:
+        return threshold
+    cortex = float(np.percentile(rim_values, 95))
     outside = float(
         np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)])
     )
