@@ -267,20 +267,26 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
+    # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
+    # bone's inside may hold, nor clutter too small to be anything).
+    objects = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
+    verdicts = segmentation.recognition.objects if segmentation.recognition is not None else ()
+    weighed = [verdict.label for verdict in verdicts if verdict.verdict != "too small"]
+    objects[[label for label in weighed if label != segmentation.bone_label]] = True
+    other = objects[segmentation.labels[box]] & ~mask
     raw_box = tuple(slice(b.start + a, b.start + c) for b, a, c in zip(segmentation.box, low, high))
     padding = outside_reconstruction(volume.voxels[raw_box])
     if fill_cavities:
         # Everything darker than the surface level that the bone encloses is its inside (marrow, cancellous bone,
         # noise holes): raising it removes the inner walls and leaves the outer edge alone. Other objects (a
         # bracket through the cortex, cut off the bone) are walls: the inside does not leak out along them.
-        other = segmentation.labels[box] > 0
-        other &= ~mask
-        if padding is not None:  # the field of view's round edge: where the scan cuts the bone, not its outside
-            other |= padding[:, :, None]
+        walls = other.copy()  # specks of noise in the bone's inside are no walls: they would split it up
+        if padding is not None:  # the field of view's round edge, where the scan cuts the bone, is no outside
+            walls |= padding[:, :, None]
         inside = _enclosed(
             image,
             (level, segmentation.threshold_hu),
-            other,
+            walls,
             segmentation.origin + low,
             segmentation.origin + high,
             volume,
@@ -293,11 +299,25 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             inside = ndimage.binary_fill_holes(bright, structure=in_slice) & ~bright
         image[inside] = level + 100.0
         mask = mask | inside
-    # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC.
-    image[~ndimage.binary_dilation(mask, iterations=2)] = min(float(image.min()), level - 1000.0)
+    if level < segmentation.threshold_hu:
+        # Below the threshold and above the surface level, the bone's voxels joined to it (cancellous bone about as
+        # bright as the threshold) are the bone's too: wiped with the other objects, they would make a surface.
+        mask = mask | _joined_above(image >= level, mask, other)
+    # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC, nor their blurred
+    # rim where they come within two voxels of the bone.
+    by_other = ndimage.binary_dilation(other, iterations=2) & ~mask if other.any() else None
+    wiped = ~ndimage.binary_dilation(mask, iterations=2)
+    if by_other is not None:
+        wiped |= by_other
+    image[wiped] = min(float(image.min()), level - 1000.0)
     vertices_ijk, triangles = iso_surface(image, level)
     if len(vertices_ijk) == 0:
         raise ValueError("the bone has no surface at the threshold; check the threshold")
+    if by_other is not None:  # the surface in a gap of a voxel or two to another object is not the bone's
+        between = ndimage.binary_dilation(by_other)[tuple(np.rint(vertices_ijk).astype(int).T)]
+        if between.any():
+            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
+            logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside): its outside, a
         # little way down the gradient, is still the bone's.
@@ -355,6 +375,16 @@ def outside_reconstruction(voxels):
     rows, columns = np.nonzero(padding)
     padding[rows, columns] = (voxels[rows, columns, :] == lowest).all(axis=1)
     return padding if padding.any() else None
+
+
+def _joined_above(above, mask, others):
+    """(I, J, K) booleans: the ``above`` voxels joined to ``mask`` (the bone) other than those of ``others`` (other
+    objects) and the two voxels round them (their blurred rim)."""
+    if others.any():
+        above = above & ~ndimage.binary_dilation(others, iterations=2)
+    labels, _ = ndimage.label(above)
+    joined = np.unique(labels[mask & above])
+    return np.isin(labels, joined[joined > 0])
 
 
 def _near_padding(padding, vertices, spacing):
@@ -420,6 +450,12 @@ def _enclosed(image, levels, walls, low, high, volume):
         labels, _ = ndimage.label(opened)
         outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
         inside |= (labels > 0) & ~np.isin(labels, outside)
+        if level == levels[0]:
+            # Holes too small to outlast the opening (noise dipping under the level in cancellous bone about as
+            # bright as the level) are inside when, unopened, they reach no open side either.
+            holes, _ = ndimage.label(dark.view(bool) & ~opened & ~inside)
+            outside = np.concatenate([np.unique(np.take(holes, side, axis=axis)) for axis, side in open_sides])
+            inside |= (holes > 0) & ~np.isin(holes, outside)
     return ndimage.binary_dilation(inside, iterations=2, mask=(image < levels[0]) & ~walls)
 
 
