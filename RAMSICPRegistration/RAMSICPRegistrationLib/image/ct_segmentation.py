@@ -325,11 +325,16 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
             logger.info("%d IPC points on inner walls left out", int(inner.sum()))
+    # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
+    # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
+    in_ct = vertices_ijk + segmentation.origin + low
+    to_side = np.minimum(in_ct, np.array(volume.voxels.shape) - 1 - in_ct) * volume.spacing
+    capped = to_side.min(axis=1) <= PADDING_MARGIN_MM
     if padding is not None:
-        capped = _near_padding(padding, vertices_ijk, volume.spacing)
-        if capped.any():
-            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
-            logger.info("%d IPC points on the field of view's round edge left out", int(capped.sum()))
+        capped |= _near_padding(padding, vertices_ijk, volume.spacing)
+    if capped.any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
+        logger.info("%d IPC points at the edge of the field of view left out", int(capped.sum()))
     origin = segmentation.origin + low  # the crop's first voxel in the CT
     metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin)
     spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
