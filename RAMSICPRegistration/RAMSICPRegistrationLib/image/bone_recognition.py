@@ -43,6 +43,9 @@ MIN_HALF_THICKNESS_MM = 2.0
 CORTEX_CONTRAST_HU = 150.0
 #: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
 MIN_CORE_MM3 = 100.0
+#: The cortex is looked for this deep (mm) under the object's surface at the threshold, which lies out in the blur
+#: beyond the cortex's peak when the threshold is low against the bone's surroundings (bone in soft tissue).
+RIM_MM = 2.5
 #: Opening radii (mm) tried to cut a bracket off the bone, smallest first.
 OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
 #: The bracket, as the bone's core grows it out of the bone kept so far, crosses the band ROD_FROM_MM to ROD_TO_MM
@@ -390,6 +393,14 @@ class _ObjectShape:
         self.max_hu = _block_max(segmentation.smoothed[box], self.block)
         self.filled = _filled(self.mask)
         self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
+        # Cells on the CT's sides: where the field of view cuts the object, its rim there is its inside.
+        first = segmentation.origin + low
+        cells = np.array(self.mask.shape)
+        self.at_edge = np.zeros(self.mask.shape, dtype=bool)
+        for axis in range(3):
+            index = first[axis] + np.arange(cells[axis]) * self.block[axis]
+            edge = (index <= self.block[axis]) | (index + 2 * self.block[axis] >= volume.voxels.shape[axis])
+            self.at_edge |= edge.reshape([-1 if a == axis else 1 for a in range(3)])
 
     def verdict(self, spheres, filled=None, depth=None):
         """ObjectVerdict of the object (or of a part: its ``filled`` cells and their ``depth``)."""
@@ -409,7 +420,9 @@ class _ObjectShape:
         return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict)
 
     def _cortex(self, filled, depth):
-        rim = filled & (depth <= self.cell.max())
+        rim = filled & (depth <= max(self.cell.max(), RIM_MM))
+        if (rim & ~self.at_edge).any():
+            rim &= ~self.at_edge
         inside = filled & (depth >= max(0.6 * float(depth.max()), self.cell.max() * 1.5))
         if not rim.any() or not inside.any():
             return None
