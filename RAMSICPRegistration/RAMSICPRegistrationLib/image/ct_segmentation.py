@@ -455,12 +455,6 @@ def _enclosed(image, levels, walls, low, high, volume):
         labels, _ = ndimage.label(opened)
         outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
         inside |= (labels > 0) & ~np.isin(labels, outside)
-        if level == levels[0]:
-            # Holes too small to outlast the opening (noise dipping under the level in cancellous bone about as
-            # bright as the level) are inside when, unopened, they reach no open side either.
-            holes, _ = ndimage.label(dark.view(bool) & ~opened & ~inside)
-            outside = np.concatenate([np.unique(np.take(holes, side, axis=axis)) for axis, side in open_sides])
-            inside |= (holes > 0) & ~np.isin(holes, outside)
     return ndimage.binary_dilation(inside, iterations=2, mask=(image < levels[0]) & ~walls)
 
 
