@@ -71,6 +71,24 @@ def test_the_ipc_is_the_bone_not_the_reference_body(family):
     assert np.median([score.coverage for score in scores if not score.refused]) >= 0.9
 
 
+#: CTs of the family (quick profile) the 200-seed benchmark found the IPC wrong on, each for one reason, with the
+#: share of the IPC within 0.5 mm of the bone before the fix: the round field of view (reconstruction cylinder)
+#: opening the marrow (7: 93 %, 21: 55 %, 32: 54 %), a steel pin through the bone taken for its cortex and the
+#: surface level set too high (81: 0 %), cancellous bone between the surface level and the threshold wiped with the
+#: specks in it (57: 93 %), a plastic body with its spheres sunk into a plate taken for a bone without a cortex (107:
+#: the whole IPC on the body).
+HARD_SEEDS = (7, 21, 32, 57, 81, 107)
+
+
+@pytest.mark.parametrize("seed", HARD_SEEDS)
+def test_the_ipc_on_ct_that_defeated_it(seed):
+    volume, truth = make_family_ct(seed)
+    _, score = run(volume, truth)
+    assert not score.refused and score.coverage > 0.6
+    assert score.ipc_on_bone >= (0.96 if seed == 81 else 0.99) * score.ipc_points  # 81: its bracket's stub
+    assert score.ipc_on_body <= 0.04 * score.ipc_points
+
+
 def test_the_papers_set_up_a_bracket_joins_a_body_larger_and_brighter_than_the_piece_of_bone():
     """The CT the old detector found 0 of 4 spheres in: spheres of 800 HU on posts and a frame of 1000 HU, bone at
     1300 HU, a 6 mm bracket of 1000 HU inserted into a flat bone (the paper's ilium) of which the field of view holds
