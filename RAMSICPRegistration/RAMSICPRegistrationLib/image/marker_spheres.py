@@ -129,7 +129,8 @@ class MarkerDetection:
     """The marker spheres found, the number of candidates rejected, warnings; with a tool, its pairing
     (``core.marker_geometry.GeometricPairing``, or None when fewer than 3 spheres fit it) and the markers missing.
     ``tied``: when no 3 spheres could be paired, the spheres (clean or partial) that lie at one of the tool's
-    pairwise marker distances from another: the reference body's, though too few or too sunk in to number."""
+    pairwise marker distances from another: the reference body's, though too few or too sunk in to number; or, when
+    there are none, the ball-shaped candidates the tool's geometry pairs (status 'hidden', never usable)."""
 
     spheres: tuple
     warnings: tuple
@@ -162,7 +163,8 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
     if tool_markers is not None:
         expected = len(tool_markers)
     spheres, rejected = [], 0
-    for candidate in find_sphere_candidates(volume, segmentation.smoothed, segmentation.origin, radius):
+    candidates = find_sphere_candidates(volume, segmentation.smoothed, segmentation.origin, radius)
+    for candidate in candidates:
         sphere = _fit_candidate(volume, segmentation, candidate.centre, radius)
         if sphere is None:
             rejected += 1
@@ -175,7 +177,9 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
         spheres, pairing, missing, warnings, dropped = _pair_with_tool(volume, spheres, tool_markers, radius)
         rejected += dropped
         if pairing is None:
-            tied = _tied_by_tool_distances(found, tool_markers)
+            tied = _tied_by_tool_distances(found, tool_markers) or _candidates_at_tool_distances(
+                volume, segmentation, [candidate.centre for candidate in candidates], tool_markers, radius
+            )
     warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"] + warnings
     good = sum(sphere.status == "ok" and (tool_markers is None or sphere.number > 0) for sphere in spheres)
     if tool_markers is None and len(spheres) != expected:
@@ -189,6 +193,32 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
     for warning in warnings:
         logger.info("marker detection: %s", warning)
     return MarkerDetection(tuple(spheres), tuple(warnings), rejected, pairing, tuple(missing), tuple(tied))
+
+
+def _candidates_at_tool_distances(volume, segmentation, centres, tool_markers, radius):
+    """When no sphere could be fitted where the tool's markers are (spheres sunk into the frame, their edges hidden):
+    the ball-shaped candidates that the tool's geometry pairs (3 or more, ``pair_by_geometry``), as spheres of status
+    'hidden' (not usable: for the bone's recognition only, which must know where the reference body is)."""
+    if len(centres) < 3:
+        return ()
+    try:
+        pairing = pair_by_geometry(centres, tool_markers)
+    except ValueError:
+        return ()
+    return tuple(
+        MarkerSphere(
+            centre=np.asarray(centres[row], float),
+            radius_mm=radius,
+            residual_mm=float("nan"),
+            coverage=0.0,
+            status="hidden",
+            surface_points=0,
+            label=_label_at(volume, segmentation, np.asarray(centres[row], float)),
+            note="a ball-shaped spot at the tool's distances from others, its edge not found",
+        )
+        for row in pairing.indices
+        if row >= 0
+    )
 
 
 def _tied_by_tool_distances(spheres, tool_markers):
