@@ -115,9 +115,9 @@ def test_the_papers_set_up_a_bracket_joins_a_body_larger_and_brighter_than_the_p
     joined = segmentation.labels == segmentation.bone_label
     body = segmentation.body
     assert body is not None and body.sum() > 0.2 * joined.sum()  # one object, a good part of it the body's
+    # The spheres are the body's part of the joined object (their voxels relabelled apart afterwards).
     assert all(
-        segmentation.labels[tuple(np.rint(volume.ras_to_ijk_points(c[None])[0]).astype(int) - segmentation.origin)]
-        == segmentation.bone_label
+        body[tuple(np.rint(volume.ras_to_ijk_points(c[None])[0]).astype(int) - segmentation.origin)]
         for c in truth.marker_centres
     )
 
@@ -192,7 +192,7 @@ def test_the_family_spans_what_a_user_meets():
     drawn = np.concatenate((values("in_plane_mm"), values("slice_mm")))
     assert drawn.min() < 0.32 and drawn.max() > 0.98 and drawn.max() <= 1.0
     fine = [make_family_ct(seed, "full", render=False)[1].settings["spacing_mm"] for seed in range(40)]
-    assert min(min(spacing) for spacing in fine) < 0.45  # the benchmark's CTs keep fine voxels
+    assert min(min(spacing) for spacing in fine) < 0.5  # the benchmark's CTs keep fine voxels
     assert values("noise_hu").min() < 3 and values("noise_hu").max() > 60
     assert values("turned").mean() > 0.3 and values("cylinder").mean() > 0.1
     assert sum(len(s["cut_markers"]) for s in settings) > 60
