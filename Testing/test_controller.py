@@ -287,7 +287,7 @@ def test_process_ct_cancel_writes_nothing(scene, tibia_phantom):
 
     before = scene.GetNumberOfNodes()
     assert controller.run("process_ct", progress=cancel_after_segmentation) is None
-    assert steps == ["segmentation", "bone surface"] and scene.GetNumberOfNodes() == before
+    assert steps == ["segmentation", "marker spheres"] and scene.GetNumberOfNodes() == before
     assert controller.status().message == "CT processing cancelled; nothing was changed"
     controller.close()
 

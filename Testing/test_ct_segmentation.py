@@ -9,6 +9,7 @@ from RAMSICPRegistrationLib.image.ct_segmentation import (
     bone_surface,
     fill_axis,
     otsu_threshold,
+    outside_reconstruction,
     resample_points,
     segment_bone,
 )
@@ -63,6 +64,29 @@ def test_cylinder_cavity_is_filled_unless_asked_to_keep_it():
     with_cavity = bone_surface(volume, segmentation, fill_cavities=False).points
     inner_radius = np.linalg.norm(with_cavity[:, :2] - CENTRE[:2], axis=1)
     assert np.sum(np.abs(inner_radius - 5.0) < 0.5) > 0.3 * len(with_cavity)  # the marrow wall is there
+
+
+def test_a_round_field_of_view_closes_the_marrow_it_cuts_and_its_cap_is_left_out():
+    """A tube (cortex 8 mm, marrow 5 mm) lying across the slices, cut by a reconstruction cylinder padded with
+    -3024 HU: the marrow is open to the padding, not to the outside, so only the outer wall is IPC, and the cap the
+    padding makes where it cuts the tube is no IPC either (the old code kept the marrow's wall and the cap)."""
+    from RAMSICPRegistrationLib.image.volume_io import CTVolume
+
+    def along_i(radius):
+        return lambda points: np.linalg.norm(points[..., 1:] - CENTRE[1:], axis=-1) - radius
+
+    volume = analytic_volume([(along_i(8.0), 1400.0), (along_i(5.0), -40.0)], size_mm=(40.0, 40.0, 30.0))
+    voxels = volume.voxels.copy()
+    i, j = np.meshgrid(*[np.arange(n) for n in voxels.shape[:2]], indexing="ij")
+    centre = (np.array(voxels.shape[:2]) - 1) / 2.0
+    outside = np.hypot((i - centre[0]) * volume.spacing[0], (j - centre[1]) * volume.spacing[1]) > 17.0
+    voxels[outside] = -3024.0
+    assert np.array_equal(outside_reconstruction(voxels), outside)
+    assert outside_reconstruction(volume.voxels) is None  # air (noise or not, not the lowest value everywhere)
+    cut = CTVolume(voxels, volume.ijk_to_ras)
+    points = bone_surface(cut, segment_bone(cut)).points
+    radius = np.linalg.norm(points[:, 1:] - CENTRE[1:], axis=1)
+    assert np.abs(radius - 8.0).max() < 0.5 * volume.spacing.max()
 
 
 def test_bone_is_the_largest_object_and_the_rest_are_candidates():

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from RAMSICPRegistrationLib.core.marker_geometry import pair_by_geometry
 from RAMSICPRegistrationLib.core.transforms import apply_transform, make_transform, rotation_about_axis
 from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone
-from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, fit_sphere, order_to_tool
+from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, fit_sphere
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 
 from conftest import analytic_volume, sphere_sdf
@@ -44,9 +45,9 @@ def test_four_spheres_found_to_0_1_mm_in_tool_order():
     volume = _body_and_spheres(truth)
     detection = detect_marker_spheres(volume, segment_bone(volume))
     assert detection.warnings == () and len(detection.ok_centres) == 4
-    order, fre = order_to_tool(detection.ok_centres, tool_marker_geometry())
-    errors = np.linalg.norm(detection.ok_centres[order] - truth, axis=1)
-    assert errors.max() < 0.1 and fre < 0.1
+    pairing = pair_by_geometry(detection.ok_centres, tool_marker_geometry())
+    errors = np.linalg.norm(detection.ok_centres[pairing.indices] - truth, axis=1)
+    assert errors.max() < 0.1 and pairing.fre_mm < 0.1
     assert all(abs(sphere.radius_mm - RADIUS) < 0.15 for sphere in detection.spheres)
 
 
@@ -90,20 +91,10 @@ def test_wrong_number_of_spheres_is_a_warning_that_says_what_to_do(count):
     )
 
 
-def test_order_to_tool_undoes_a_shuffle():
-    truth = _tool_in_image()
-    shuffled = truth[[2, 0, 3, 1]]
-    order, fre = order_to_tool(shuffled, tool_marker_geometry())
-    np.testing.assert_allclose(shuffled[order], truth, atol=1e-9)
-    assert fre < 1e-6
-    with pytest.raises(ValueError, match="3 centres for 4 tool markers"):
-        order_to_tool(truth[:3], tool_marker_geometry())
-
-
 def test_tibia_phantom_markers_and_ipc(tibia_phantom, tibia_patient):
     volume, truth = tibia_phantom
     segmentation = segment_bone(volume)
     detection = detect_marker_spheres(volume, segmentation)
-    order, _ = order_to_tool(detection.ok_centres, tibia_patient.markers_reference)
-    errors = np.linalg.norm(detection.ok_centres[order] - truth.marker_centres, axis=1)
+    pairing = pair_by_geometry(detection.ok_centres, tibia_patient.markers_reference)
+    errors = np.linalg.norm(detection.ok_centres[pairing.indices] - truth.marker_centres, axis=1)
     assert errors.max() < 0.1

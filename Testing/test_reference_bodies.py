@@ -1,6 +1,8 @@
 """Marker centres on real reference bodies (issue 12): spheres fused to bright posts and frames, metal streaks,
 low-dose noise, a turned scanner grid, a sphere cut by the field of view. True centres come from the generator."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,7 @@ from RAMSICPRegistrationLib.commands import main
 from RAMSICPRegistrationLib.core.transforms import apply_transform
 from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
 from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone
-from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, match_to_tool
+from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres
 from RAMSICPRegistrationLib.image.volume_io import save_nrrd
 from RAMSICPRegistrationLib.io.marker_files import read_markers
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
@@ -128,7 +130,8 @@ def test_labelmap_shows_the_spheres_not_the_posts_and_frame(aluminium):
             foot - centre
         )
         on_post = tuple(np.rint(volume.ras_to_ijk_points(along_post)).astype(int).T)
-        assert (image.segmentation.labels[on_post] > 0).all() and (labels[on_post] != index + 2).all()
+        in_box = tuple(np.array(on_post) - image.segmentation.origin[:, None])
+        assert (image.segmentation.labels[in_box] > 0).all() and (labels[on_post] != index + 2).all()
 
 
 def test_pin_through_the_shaft_leaves_no_metal_or_streak_in_the_ipc():
@@ -144,15 +147,41 @@ def test_pin_through_the_shaft_leaves_no_metal_or_streak_in_the_ipc():
     assert [(sphere.number, sphere.status) for sphere in image.spheres] == [(n, "ok") for n in (1, 2, 3, 4)]
 
 
-def test_match_to_tool_numbers_a_subset_and_flagged_spheres():
-    centres = apply_transform(body_pose(TOOL), TOOL)
-    numbers, fre = match_to_tool(centres[[3, 0, 1]], TOOL)  # marker 3 missing, the rest shuffled
-    assert numbers.tolist() == [4, 1, 2] and fre < 1e-9
-    off = centres + [[0.0, 0.0, 0.0], [0.8, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]  # marker 2 is 0.8 mm off
-    numbers, fre = match_to_tool(off[[2, 1, 3, 0]], TOOL, usable=[True, False, True, True])
-    assert numbers.tolist() == [3, 2, 4, 1] and fre < 1e-9  # the pairing rests on the usable three
-    numbers, fre = match_to_tool(centres[:2], TOOL)
-    assert numbers.tolist() == [0, 0] and fre is None
+def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium, tmp_path, capsys):
+    """Marker 3's sphere blanked out: the other three are paired by the tool's distances and marker 3's centre is
+    expected where they put it, inside the field of view."""
+    volume, truth, _ = aluminium
+    voxels = volume.voxels.copy()
+    centre = truth.marker_centres[2]
+    low = np.floor(volume.ras_to_ijk_points(centre[None])[0] - 16).astype(int)
+    grid = np.argwhere(np.ones((33, 33, 33), dtype=bool)) + low
+    voxels[tuple(grid[np.linalg.norm(volume.ijk_to_ras_points(grid) - centre, axis=1) < RADIUS + 0.8].T)] = -1000
+    blanked = type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
+    image = process_ct(blanked, tool_markers=TOOL)
+    assert [sphere.number for sphere in image.usable] == [1, 2, 4]
+    (missing,) = image.missing
+    assert missing.number == 3 and missing.in_field_of_view
+    assert np.linalg.norm(missing.expected - centre) < 0.05
+    assert any(
+        warning.startswith("marker 3 not found: the other markers put its centre at") for warning in image.warnings
+    )
+    # ramsicp ipc prints where it is expected and puts it in the JSON, with the pairing.
+    save_nrrd(tmp_path / "ct.nrrd", blanked)
+    arguments = [
+        "ipc",
+        str(tmp_path / "ct.nrrd"),
+        "--out",
+        str(tmp_path / "ipc.vtp"),
+        "--json",
+        str(tmp_path / "i.json"),
+    ]
+    assert main(arguments) == 0
+    printed = capsys.readouterr().out
+    assert "marker 3         not found; the other markers put it at (" in printed and "inside the CT" in printed
+    document = json.loads((tmp_path / "i.json").read_text(encoding="utf-8"))
+    (entry,) = document["missing_markers"]
+    assert entry["number"] == 3 and np.linalg.norm(np.array(entry["expected"]) - centre) < 0.05
+    assert document["pairing"]["indices"][2] == -1 and document["bone"]["reference_body_cut_off"] is False
 
 
 def test_a_rod_or_a_frame_alone_is_no_marker(aluminium):

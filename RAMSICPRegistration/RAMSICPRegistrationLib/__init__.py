@@ -116,13 +116,13 @@ _EXPORTS = {
     "segment_bone": "image.ct_segmentation",
     "bone_surface": "image.ct_segmentation",
     "detect_marker_spheres": "image.marker_spheres",
-    "order_to_tool": "image.marker_spheres",
-    "match_to_tool": "image.marker_spheres",
+    "pair_by_geometry": "core.marker_geometry",
     "find_metal_zone": "image.metal",
     "process_ct": "image.ct_pipeline",
     # simulation
     "make_ct_phantom": "simulation.ct_phantom",
     "make_reference_body_phantom": "simulation.reference_body_phantom",
+    "make_family_ct": "simulation.reference_ct_family",
     "ReferenceBodyModel": "simulation.ct_painting",
     "MetalRod": "simulation.ct_painting",
 }

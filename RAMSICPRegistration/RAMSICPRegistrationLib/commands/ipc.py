@@ -18,8 +18,11 @@ def add_parser(commands):
     ipc = commands.add_parser(
         "ipc",
         help="CT -> image point cloud (IPC) and marker-sphere centres",
-        description="Segments the bone by a threshold, writes its outer surface as the IPC (in the CT's RAS "
-        "coordinates) and finds the reference body's marker spheres (11.5 mm), numbered in the tool's order.",
+        description="Finds the reference body's marker spheres (11.5 mm) anywhere in the CT and numbers them in the "
+        "tool's order by its inter-marker distances (a missing one is located); segments the CT by a threshold, "
+        "recognises the bone as the object holding no sphere, with a cortex (cut off a bracket that joins it to the "
+        "reference body; no plausible bone: exit 2 with what was found), and writes its outer surface as the IPC "
+        "(in the CT's RAS coordinates).",
     )
     ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder")
     ipc.add_argument(
@@ -114,6 +117,20 @@ def run(arguments):
             f"{name:<17}({centre}) radius {sphere.radius_mm:.2f} mm, residual {sphere.residual_mm:.3f} mm, "
             f"{sphere.status}" + (f" ({sphere.note})" if sphere.note else "")
         )
+    for missing in image.missing:
+        centre = ", ".join(f"{value:.2f}" for value in missing.expected)
+        where = "inside" if missing.in_field_of_view else "outside"
+        print(f"{f'marker {missing.number}':<17}not found; the other markers put it at ({centre}), {where} the CT")
+    recognition = segmentation.recognition
+    bone = next(verdict for verdict in recognition.objects if verdict.label == recognition.label)
+    print(
+        f"bone             {bone.describe()}"
+        + (
+            f"; cut off the reference body, {image.surface.left_out_body:,} IPC points next to it left out"
+            if segmentation.body is not None
+            else ""
+        )
+    )
     if arguments.markers is not None:
         print(f"marker centres   {len(image.usable)} of {len(tool)} usable -> {arguments.markers}")
     print("time             " + ", ".join(f"{name.replace('_', ' ')} {value:.2f} s" for name, value in seconds.items()))
@@ -128,6 +145,14 @@ def run(arguments):
             "ipc_points": len(points),
             "spheres": [sphere.to_dict() for sphere in spheres],
             "usable_markers": [sphere.number for sphere in image.usable],
+            "missing_markers": [missing.to_dict() for missing in image.missing],
+            "pairing": None if image.pairing is None else image.pairing.to_dict(),
+            "bone": {
+                "objects": [verdict.to_dict() for verdict in recognition.objects],
+                "label": recognition.label,
+                "reference_body_cut_off": segmentation.body is not None,
+                "ipc_points_left_out_next_to_the_reference_body": image.surface.left_out_body,
+            },
             "ipc_points_left_out_near_metal": image.surface.left_out,
             "warnings": warnings,
             "seconds": seconds,

@@ -1,18 +1,17 @@
-"""The whole image side in one call: CT -> segmentation -> IPC, and the marker spheres paired with the tool.
+"""The whole image side in one call: CT -> segmentation -> marker spheres -> the bone -> IPC.
 
-The command line (``ramsicp ipc``), the demo and the Slicer logic all run this one function.
+The command line (``ramsicp ipc``), the demo and the Slicer logic all run this one function. The order matters: the
+marker spheres are found first (anywhere in the CT, paired with the tool by its geometry), because the bone is
+recognised as the object that holds none of them (``bone_recognition``).
 """
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, segment_bone
-from .marker_spheres import detect_marker_spheres, label_sphere_voxels, match_to_tool, sphere_warning
-
-#: A sphere set whose best pairing with the tool geometry leaves more than this FRE (mm) is not that tool.
-TOOL_MISMATCH_FRE_MM = 1.0
+from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
+from .marker_spheres import detect_marker_spheres, label_sphere_voxels
 
 
 @dataclass(frozen=True)
@@ -20,7 +19,10 @@ class ImageSideResult:
     """Segmentation, IPC surface, marker spheres, warnings, timings (s).
 
     ``spheres`` are in the order of the tool's markers when a tool was given: each has its tool marker
-    ``number`` (1-based; 0 when it could not be paired), and unpaired ones come last.
+    ``number`` (1-based; 0 when it could not be paired), and unpaired ones come last. ``missing`` holds a
+    ``marker_spheres.MissingMarker`` (number, expected centre, in the field of view or not) for each tool marker
+    no sphere was found for; ``pairing`` the ``core.marker_geometry.GeometricPairing`` (None without a tool, or
+    when fewer than 3 spheres fit it).
     """
 
     segmentation: object
@@ -28,6 +30,8 @@ class ImageSideResult:
     spheres: tuple
     warnings: tuple
     seconds: dict = field(default_factory=dict)
+    missing: tuple = ()
+    pairing: object = None
 
     @property
     def centres(self):
@@ -46,36 +50,36 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     Args:
         threshold_hu: bone threshold (HU) or 'auto'.
         fill_cavities: keep only the outer bone surface in the IPC.
-        tool_markers: (K, 3) marker geometry of the reference body; the spheres found are paired with its
-            markers by their distances (a warning is given if they do not fit it).
+        tool_markers: (K, 3) marker geometry of the reference body; its markers are chosen among the spheres
+            found by their distances, and a missing one is located.
         progress: optional callable ``progress(step, done, total)``.
 
     The segmentation's labels give each sphere's own voxels a label of their own (``sphere.label``), split from
     the posts and frame they touch, so a labelmap of the spheres shows the spheres only.
+
+    Raises:
+        ValueError: a bad threshold, or no object in the CT that is plausibly bone (the message says what was
+            found).
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
     clock = time.perf_counter()
     report("segmentation", 0, 3)
-    segmentation = segment_bone(volume, threshold_hu)
+    segmentation = threshold_ct(volume, threshold_hu)
     seconds["segmentation"] = time.perf_counter() - clock
-    report("bone surface", 1, 3)
+    report("marker spheres", 1, 3)
     clock = time.perf_counter()
+    expected = 4 if tool_markers is None else len(tool_markers)
+    detection = detect_marker_spheres(volume, segmentation, expected=expected, tool_markers=tool_markers)
+    seconds["marker_spheres"] = time.perf_counter() - clock
+    report("bone surface", 2, 3)
+    clock = time.perf_counter()
+    segmentation = with_bone(volume, segmentation, reference_body_spheres(detection))
     surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
     seconds["surface"] = time.perf_counter() - clock
-    report("marker spheres", 2, 3)
-    clock = time.perf_counter()
-    detection = detect_marker_spheres(volume, segmentation, expected=4 if tool_markers is None else len(tool_markers))
-    spheres = list(label_sphere_voxels(volume, segmentation, detection.spheres))
-    warnings = list(detection.warnings)
-    if tool_markers is not None and spheres:
-        spheres, warning = _pair_with_tool(spheres, tool_markers)
-        # Name the flagged spheres by their marker numbers now that they have them.
-        unnamed = {sphere_warning(sphere) for sphere in detection.spheres}
-        named = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"]
-        warnings = named + [w for w in warnings if w not in unnamed] + ([warning] if warning else [])
-    seconds["marker_spheres"] = time.perf_counter() - clock
-    report("marker spheres", 3, 3)
+    spheres = label_sphere_voxels(volume, segmentation, detection.spheres)
+    report("bone surface", 3, 3)
+    warnings = list(detection.warnings) + list(segmentation.recognition.warnings)
     if surface.left_out:
         centre = ", ".join(f"{value:.0f}" for value in surface.metal.centre)
         warnings.append(
@@ -84,24 +88,6 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
             f"{surface.metal.reach_mm:.0f} mm of it in its slices (streaks), are left out of the IPC; collect "
             "probe points away from it"
         )
-    return ImageSideResult(segmentation, surface, tuple(spheres), tuple(warnings), seconds)
-
-
-def _pair_with_tool(spheres, tool_markers):
-    """Number the spheres by the tool's markers and sort them so; a warning when they do not fit the tool."""
-    centres = np.array([sphere.centre for sphere in spheres])
-    usable = np.array([sphere.status == "ok" for sphere in spheres])
-    numbers, fre = match_to_tool(centres, tool_markers, usable)
-    spheres = [replace(sphere, number=int(number)) for sphere, number in zip(spheres, numbers)]
-    spheres.sort(key=lambda sphere: sphere.number if sphere.number > 0 else len(tool_markers) + 1)
-    if fre is None:
-        return spheres, (
-            f"{len(spheres)} sphere(s) cannot be paired with the reference body's {len(tool_markers)} markers "
-            "(at least 3 are needed); place the centres by hand"
-        )
-    if fre > TOOL_MISMATCH_FRE_MM:
-        return spheres, (
-            f"the sphere centres do not match the reference body's geometry (FRE {fre:.2f} mm); "
-            "check which NDI tool is mounted"
-        )
-    return spheres, None
+    return ImageSideResult(
+        segmentation, surface, tuple(spheres), tuple(warnings), seconds, detection.missing, detection.pairing
+    )

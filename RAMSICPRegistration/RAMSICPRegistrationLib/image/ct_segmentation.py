@@ -1,24 +1,32 @@
 """Bone segmentation and the image point cloud (paper, "Data acquisition" (1)).
 
-Denoise (Gaussian), threshold (HU, or automatic by Otsu's method above soft tissue), connected components; the
-bone is the largest component, the other bright islands are candidates for the marker spheres. The IPC is the
-bone's iso-surface at the threshold (VTK's flying edges: sub-voxel vertices), in RAS millimetres. Marrow
-cavities are filled slice by slice first, so that the IPC is the outer bone surface a probe can touch; the
-paper's IPC keeps both cortical surfaces, which ``fill_cavities=False`` reproduces. Near metal (an implant, a
-pin) the surface is left out: ``metal.py`` says where and why.
+Denoise (Gaussian), threshold (HU, or automatic by Otsu's method above soft tissue), connected components; which
+component is the bone is decided by what bone is, not by its size (``bone_recognition``): the object that holds
+no marker spheres, with a cortex round a dimmer inside, cut off the reference body when a bracket joins them. The
+IPC is the bone's iso-surface (VTK's flying edges: sub-voxel vertices), in RAS millimetres. Marrow cavities are
+filled slice by slice first, so that the IPC is the outer bone surface a probe can touch; the paper's IPC keeps
+both cortical surfaces, which ``fill_cavities=False`` reproduces. Near metal (an implant, a pin) the surface is
+left out: ``metal.py`` says where and why; next to a bracket cut off the bone, too.
+
+Only the box of the CT that holds something other than air (and a margin) is denoised and searched: a C-arm CT of
+a specimen is mostly air.
 """
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
 
-from ..io.vtk_arrays import image_data, triangle_arrays
+from .bone_recognition import recognise_bone
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
+from .iso_surface import iso_surface
+from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
 
 logger = logging.getLogger(__name__)
+
+__all__ = ["iso_surface"]  # also here for the callers that import it from this module
 
 #: Gaussian denoising before the threshold (mm): about half the paper's pixel.
 DEFAULT_DENOISE_SIGMA_MM = 0.3
@@ -26,18 +34,28 @@ DEFAULT_DENOISE_SIGMA_MM = 0.3
 HALF_MAX_MAX_VOXEL_MM = 1.0
 #: Islands smaller than this (mm^3) are noise, not objects.
 MIN_OBJECT_MM3 = 50.0
+#: Voxels above this (HU) are something other than air (tissue, bone, any part of a reference body, a plastic
+#: sphere); the box holding them, with BOX_MARGIN_MM more, is the part of the CT the image side works on.
+SOMETHING_HU = -500.0
+BOX_MARGIN_MM = 10.0
+#: The look for that box samples the CT about this coarsely (mm): nothing the image side needs is thinner.
+BOX_LOOK_MM = 2.0
 
 
 @dataclass(frozen=True)
 class BoneSegmentation:
-    """Result of ``segment_bone``.
+    """Result of ``threshold_ct`` and ``segment_bone``, over the ``box`` of the CT that holds something.
 
     Attributes:
-        smoothed: (I, J, K) float32 denoised HU.
+        smoothed: (I', J', K') float32 denoised HU over ``box``.
         threshold_hu: the threshold used.
-        labels: (I, J, K) int32 connected components of the thresholded volume (0 = background).
-        bone_label: label of the bone.
-        object_labels: labels of the other components larger than MIN_OBJECT_MM3 (marker-sphere candidates).
+        labels: (I', J', K') int32 connected components of the thresholded box (0 = background).
+        bone_label: label of the bone (0 before it is recognised).
+        object_labels: labels of the other components larger than MIN_OBJECT_MM3.
+        box: 3 slices into the CT's voxels; ``volume_shape`` the CT's shape.
+        body: (I', J', K') booleans of the reference body's voxels in the bone's component (a bracket joins them),
+            or None; IPC points within ``body_margin_mm`` of them are left out.
+        recognition: the ``bone_recognition.BoneRecognition`` (what each object was taken for, and why).
     """
 
     smoothed: np.ndarray
@@ -45,20 +63,43 @@ class BoneSegmentation:
     labels: np.ndarray
     bone_label: int
     object_labels: tuple
+    box: tuple = None
+    volume_shape: tuple = None
+    body: np.ndarray = None
+    body_margin_mm: float = 0.0
+    recognition: object = None
+
+    @property
+    def origin(self):
+        """(3,) index of the box's first voxel in the CT."""
+        return np.array([0, 0, 0] if self.box is None else [s.start for s in self.box])
+
+    def bone_mask_in_box(self):
+        """(I', J', K') booleans of the bone over ``box``: its component without the reference body's voxels."""
+        mask = self.labels == self.bone_label
+        return mask if self.body is None else mask & ~self.body
 
     @property
     def bone_mask(self):
-        return self.labels == self.bone_label
+        """(I, J, K) booleans of the bone over the whole CT."""
+        return self._whole(self.bone_mask_in_box())
 
     def labelmap(self, sphere_labels=(), values=None):
-        """(I, J, K) uint8 labelmap: 1 for the bone, and for the marker spheres given by their labels in
-        ``labels`` the ``values`` given (2, 3, ... in the order given by default)."""
+        """(I, J, K) uint8 labelmap of the whole CT: 1 for the bone, and for the marker spheres given by their
+        labels in ``labels`` the ``values`` given (2, 3, ... in the order given by default)."""
         labelmap = np.zeros(self.labels.shape, dtype=np.uint8)
-        labelmap[self.bone_mask] = 1
+        labelmap[self.bone_mask_in_box()] = 1
         values = range(2, 2 + len(sphere_labels)) if values is None else values
         for label, value in zip(sphere_labels, values):
             labelmap[self.labels == label] = value
-        return labelmap
+        return self._whole(labelmap)
+
+    def _whole(self, array):
+        if self.box is None or tuple(array.shape) == tuple(self.volume_shape):
+            return array
+        whole = np.zeros(self.volume_shape, dtype=array.dtype)
+        whole[self.box] = array
+        return whole
 
 
 def otsu_threshold(values, bins=512):
@@ -74,19 +115,66 @@ def otsu_threshold(values, bins=512):
     return float(np.mean(edges[best + 1]))
 
 
-def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEFAULT_DENOISE_SIGMA_MM):
-    """Denoise, threshold and split a CT into the bone and other bright objects.
+def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEFAULT_DENOISE_SIGMA_MM, spheres=None):
+    """Denoise, threshold and split a CT into objects, and recognise the bone among them.
 
     Args:
         volume: CTVolume in HU.
         threshold_hu: a number, or ``'auto'`` for Otsu's threshold over the voxels above -200 HU (tissue and
             bone, not air).
         denoise_sigma_mm: Gaussian sigma (mm); 0 turns denoising off.
+        spheres: the marker spheres found in this CT (``marker_spheres.MarkerSphere``); looked for when None.
+
+    Raises:
+        ValueError: no voxel above the threshold, an unknown threshold, or no object that is plausibly bone
+            (``bone_recognition.recognise_bone`` says what was found).
+    """
+    segmentation = threshold_ct(volume, threshold_hu, denoise_sigma_mm)
+    if spheres is None:
+        spheres = reference_body_spheres(detect_marker_spheres(volume, segmentation))
+    return with_bone(volume, segmentation, spheres)
+
+
+def reference_body_spheres(detection):
+    """The spheres that make a reference body, for the bone's recognition: those paired with the tool when it could
+    be paired (a round bump of bone that fits a sphere is not one of them), else those at the tool's distances from
+    one another (``MarkerDetection.tied``: too few in view or too sunk into the frame to number, but the body's),
+    else the clean ones if there are at least 3 (a reference body has 3 markers or more; one sphere-like spot is
+    no body)."""
+    if detection.pairing is not None:
+        return [sphere for sphere in detection.spheres if sphere.number > 0]
+    if detection.tied:
+        return list(detection.tied)
+    clean = [sphere for sphere in detection.spheres if sphere.status == "ok"]
+    return clean if len(clean) >= 3 else []
+
+
+def with_bone(volume, segmentation, spheres):
+    """The segmentation with its bone recognised (``bone_recognition``), knowing the marker spheres found."""
+    recognition = recognise_bone(volume, segmentation, spheres)
+    others = tuple(label for label in segmentation.object_labels if label != recognition.label)
+    return replace(
+        segmentation,
+        bone_label=recognition.label,
+        object_labels=others,
+        body=recognition.body,
+        body_margin_mm=recognition.body_margin_mm,
+        recognition=recognition,
+    )
+
+
+def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEFAULT_DENOISE_SIGMA_MM):
+    """Denoise and threshold the box of a CT that holds something, and label its connected components.
+
+    Returns:
+        BoneSegmentation with ``bone_label`` 0 and every component larger than MIN_OBJECT_MM3 in
+        ``object_labels``.
 
     Raises:
         ValueError: no voxel above the threshold, or an unknown threshold.
     """
-    smoothed = volume.voxels.astype(np.float32)
+    box = region_of_interest(volume)
+    smoothed = volume.voxels[box].astype(np.float32)
     if denoise_sigma_mm > 0:
         smoothed = ndimage.gaussian_filter(smoothed, denoise_sigma_mm / volume.spacing, truncate=3.0)
     if threshold_hu == "auto":
@@ -103,37 +191,58 @@ def segment_bone(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
     if not foreground.any():
         raise ValueError(
             f"no voxel is above the threshold of {threshold_hu:.0f} HU (the CT's maximum is "
-            f"{float(smoothed.max()):.0f} HU); lower the threshold or check that the CT is in HU"
+            f"{float(volume.voxels.max()):.0f} HU); lower the threshold or check that the CT is in HU"
         )
     labels, count = ndimage.label(foreground)
     sizes = np.bincount(labels[foreground], minlength=count + 1)  # the foreground only: a few % of the CT
     sizes[0] = 0
-    bone_label = int(np.argmax(sizes))
     voxel_mm3 = float(np.prod(volume.spacing))
-    objects = tuple(int(label) for label in np.flatnonzero(sizes * voxel_mm3 >= MIN_OBJECT_MM3) if label != bone_label)
-    logger.info(
-        "threshold %.0f HU: bone %.0f mm^3, %d other objects", threshold_hu, sizes[bone_label] * voxel_mm3, len(objects)
-    )
+    objects = tuple(int(label) for label in np.flatnonzero(sizes * voxel_mm3 >= MIN_OBJECT_MM3))
+    logger.info("threshold %.0f HU: %d objects over %.0f mm^3", threshold_hu, len(objects), voxel_mm3)
     return BoneSegmentation(
         smoothed=smoothed,
         threshold_hu=threshold_hu,
         labels=labels.astype(np.int32, copy=False),
-        bone_label=bone_label,
+        bone_label=0,
         object_labels=objects,
+        box=box,
+        volume_shape=tuple(volume.voxels.shape),
     )
+
+
+def region_of_interest(volume):
+    """The box (3 slices) of a CT that holds every voxel above SOMETHING_HU, with BOX_MARGIN_MM around it.
+
+    The CT is looked at every ``BOX_LOOK_MM`` or so; a CT of nothing but air gives the whole volume.
+    """
+    shape = np.array(volume.voxels.shape)
+    stride = np.maximum(1, np.floor(BOX_LOOK_MM / volume.spacing)).astype(int)
+    something = volume.voxels[:: stride[0], :: stride[1], :: stride[2]] > SOMETHING_HU
+    if not something.any():
+        return tuple(slice(0, n) for n in shape)
+    margin = np.ceil(BOX_MARGIN_MM / volume.spacing).astype(int) + stride
+    box = []
+    for axis in range(3):
+        present = np.flatnonzero(something.any(axis=tuple(a for a in range(3) if a != axis)))
+        low = max(int(present[0]) * stride[axis] - margin[axis], 0)
+        high = min(int(present[-1]) * stride[axis] + margin[axis] + 1, shape[axis])
+        box.append(slice(low, high))
+    return tuple(box)
 
 
 @dataclass(frozen=True)
 class BoneSurface:
     """The IPC: ``points`` (M, 3) RAS mm, and the iso-surface ``triangles`` (K, 3) over them.
 
-    ``metal`` is the MetalZone of the CT; ``left_out`` the number of surface points dropped in it.
+    ``metal`` is the MetalZone of the CT; ``left_out`` the number of surface points dropped in it;
+    ``left_out_body`` those dropped next to a reference body joined to the bone (a bracket).
     """
 
     points: np.ndarray
     triangles: np.ndarray
     metal: object = None
     left_out: int = 0
+    left_out_body: int = 0
 
 
 def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", leave_out_metal=True):
@@ -141,7 +250,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
 
     Args:
         volume: the CTVolume that was segmented (for its geometry).
-        segmentation: BoneSegmentation.
+        segmentation: BoneSegmentation with its bone recognised (``segment_bone``).
         fill_cavities: fill the marrow cavity slice by slice so only the outer surface remains.
         level: ``'half-max'`` (default) puts the surface half-way between the cortex and the tissue just outside
             it, both measured in this CT, which removes the blur's outward bias of a low threshold (0.6 mm on
@@ -150,40 +259,223 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         leave_out_metal: drop the surface in the metal zone (``metal.find_metal_zone``); False keeps it, to
             see what the metal does.
     """
-    full_mask = segmentation.bone_mask
-    low, high = _bounding_box(full_mask, pad=4)
+    if segmentation.bone_label <= 0:
+        raise ValueError("the segmentation has no bone recognised yet; make it with segment_bone")
+    bone = segmentation.bone_mask_in_box()
+    low, high = _bounding_box(bone, pad=4)
     box = tuple(slice(a, b) for a, b in zip(low, high))
-    mask = full_mask[box]
+    mask = bone[box]
     image = segmentation.smoothed[box].copy()
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
+    # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
+    # bone's inside may hold, nor clutter too small to be anything).
+    objects = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
+    verdicts = segmentation.recognition.objects if segmentation.recognition is not None else ()
+    weighed = [verdict.label for verdict in verdicts if verdict.verdict != "too small"]
+    objects[[label for label in weighed if label != segmentation.bone_label]] = True
+    other = objects[segmentation.labels[box]] & ~mask
+    raw_box = tuple(slice(b.start + a, b.start + c) for b, a, c in zip(segmentation.box, low, high))
+    padding = outside_reconstruction(volume.voxels[raw_box])
     if fill_cavities:
-        # Everything darker than the surface level that the bone encloses, slice by slice, is cavity: raising
-        # it removes the inner (marrow) wall and leaves the outer edge, which is open to the outside, alone.
-        axis = fill_axis(full_mask, volume.spacing)
-        in_slice = np.zeros((3, 3, 3), dtype=bool)
-        in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
-        bright = (image >= level) & ndimage.binary_dilation(mask, iterations=2)
-        cavity = ndimage.binary_fill_holes(bright, structure=in_slice) & ~bright
-        image[cavity] = level + 100.0
-        mask = mask | cavity
-    # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC.
-    image[~ndimage.binary_dilation(mask, iterations=2)] = min(float(image.min()), level - 1000.0)
+        # Everything darker than the surface level that the bone encloses is its inside (marrow, cancellous bone,
+        # noise holes): raising it removes the inner walls and leaves the outer edge alone. Other objects (a
+        # bracket through the cortex, cut off the bone) are walls: the inside does not leak out along them.
+        walls = other.copy()  # specks of noise in the bone's inside are no walls: they would split it up
+        if padding is not None:  # the field of view's round edge, where the scan cuts the bone, is no outside
+            walls |= padding[:, :, None]
+        inside = _enclosed(
+            image,
+            (level, segmentation.threshold_hu),
+            walls,
+            segmentation.origin + low,
+            segmentation.origin + high,
+            volume,
+        )
+        if inside is None:  # the bone fills the field of view: enclosed in slices across the axis it is cut along
+            axis = fill_axis(bone, volume.spacing)
+            in_slice = np.zeros((3, 3, 3), dtype=bool)
+            in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
+            bright = (image >= level) & ndimage.binary_dilation(mask, iterations=2)
+            inside = ndimage.binary_fill_holes(bright, structure=in_slice) & ~bright
+        image[inside] = level + 100.0
+        mask = mask | inside
+    if level < segmentation.threshold_hu:
+        # Below the threshold and above the surface level, the bone's voxels joined to it (cancellous bone about as
+        # bright as the threshold) are the bone's too: wiped with the other objects, they would make a surface.
+        mask = mask | _joined_above(image >= level, mask, other)
+    # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC, nor their blurred
+    # rim where they come within two voxels of the bone.
+    by_other = ndimage.binary_dilation(other, iterations=2) & ~mask if other.any() else None
+    wiped = ~ndimage.binary_dilation(mask, iterations=2)
+    if by_other is not None:
+        wiped |= by_other
+    image[wiped] = min(float(image.min()), level - 1000.0)
     vertices_ijk, triangles = iso_surface(image, level)
     if len(vertices_ijk) == 0:
         raise ValueError("the bone has no surface at the threshold; check the threshold")
-    metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high))
-    spoilt = metal.contains_ijk(vertices_ijk + low) if leave_out_metal else np.zeros(len(vertices_ijk), dtype=bool)
+    if by_other is not None:  # the surface in a gap of a voxel or two to another object is not the bone's
+        between = ndimage.binary_dilation(by_other)[tuple(np.rint(vertices_ijk).astype(int).T)]
+        if between.any():
+            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
+            logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
+    if fill_cavities:
+        # An inner wall left (a cortex too thin to stay above the level all round the inside): its outside, a
+        # little way down the gradient, is still the bone's.
+        inner = _facing_inward(image, vertices_ijk, mask, volume.spacing)
+        if inner.any():
+            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
+            logger.info("%d IPC points on inner walls left out", int(inner.sum()))
+    # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
+    # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
+    in_ct = vertices_ijk + segmentation.origin + low
+    to_side = np.minimum(in_ct, np.array(volume.voxels.shape) - 1 - in_ct) * volume.spacing
+    capped = to_side.min(axis=1) <= PADDING_MARGIN_MM
+    if padding is not None:
+        capped |= _near_padding(padding, vertices_ijk, volume.spacing)
+    if capped.any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
+        logger.info("%d IPC points at the edge of the field of view left out", int(capped.sum()))
+    origin = segmentation.origin + low  # the crop's first voxel in the CT
+    metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin)
+    spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
     if spoilt.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
         logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))
+    by_body = _next_to_body(volume, segmentation, vertices_ijk + low)
+    if by_body.any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, by_body)
+        logger.info("%d bone-surface points next to the reference body's bracket left out", int(by_body.sum()))
     if len(vertices_ijk) == 0:
         raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
     return BoneSurface(
-        points=volume.ijk_to_ras_points(vertices_ijk + low),
+        points=volume.ijk_to_ras_points(vertices_ijk + origin),
         triangles=triangles,
         metal=metal,
         left_out=int(spoilt.sum()),
+        left_out_body=int(by_body.sum()),
     )
+
+
+#: The reconstruction's padding is told from air over at least this many slices (a column of one value, the CT's
+#: lowest, in every slice: air has noise).
+PADDING_MIN_SLICES = 16
+#: IPC points closer than this (mm) to the padding lie on the cap the field of view's edge makes (the denoising
+#: blurs the padding's edge in).
+PADDING_MARGIN_MM = 1.5
+
+
+def outside_reconstruction(voxels):
+    """(I, J) booleans over a box of raw CT voxels (I, J, K): in-plane positions outside the reconstruction
+    cylinder, padded with one value at or below -1024 HU (the CT's lowest) in all of the box's slices; None when
+    there is none (or the box has too few slices to tell padding from air)."""
+    if voxels.shape[2] < PADDING_MIN_SLICES:
+        return None
+    lowest = voxels.min()
+    if lowest > -1024:
+        return None
+    # Column by column, a few slices first (most columns differ there), the rest only where they did not.
+    padding = (voxels[:, :, :: max(1, voxels.shape[2] // 8)] == lowest).all(axis=2)
+    if not padding.any():
+        return None
+    rows, columns = np.nonzero(padding)
+    padding[rows, columns] = (voxels[rows, columns, :] == lowest).all(axis=1)
+    return padding if padding.any() else None
+
+
+def _joined_above(above, mask, others):
+    """(I, J, K) booleans: the ``above`` voxels joined to ``mask`` (the bone) other than those of ``others`` (other
+    objects) and the two voxels round them (their blurred rim)."""
+    if others.any():
+        above = above & ~ndimage.binary_dilation(others, iterations=2)
+    labels, _ = ndimage.label(above)
+    joined = np.unique(labels[mask & above])
+    return np.isin(labels, joined[joined > 0])
+
+
+def _near_padding(padding, vertices, spacing):
+    """(M,) booleans: vertices (indices (M, 3) in the box) within PADDING_MARGIN_MM of the padding (I, J)."""
+    distance = ndimage.distance_transform_edt(~padding, sampling=spacing[:2])
+    return ndimage.map_coordinates(distance, vertices[:, :2].T, order=1, mode="nearest") <= PADDING_MARGIN_MM
+
+
+#: A surface point whose outside this far (mm, and at least a voxel) down the gradient is still the bone's is an
+#: inner wall.
+INNER_WALL_MM = 1.5
+
+
+def _facing_inward(image, vertices, mask, spacing):
+    """(M,) booleans: iso-surface vertices (indices in ``image``) whose dimmer side, INNER_WALL_MM away along the
+    gradient, lies in the bone's ``mask`` (its voxels above the threshold and its filled inside)."""
+    gradient = np.stack(
+        [
+            ndimage.map_coordinates(image, (vertices + step).T, order=1, mode="nearest")
+            - ndimage.map_coordinates(image, (vertices - step).T, order=1, mode="nearest")
+            for step in np.eye(3)
+        ],
+        axis=1,
+    ) / (2.0 * spacing)
+    down = -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)  # per mm, grid axes
+    reach = max(INNER_WALL_MM, float(spacing.max()))
+    # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
+    outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
+    return mask[tuple(outside.T)]
+
+
+#: The dark regions round a thin cortex are told apart once opened by a cube about this wide (mm).
+OPENING_MM = 2.0
+
+
+def _enclosed(image, levels, walls, low, high, volume):
+    """(I, J, K) booleans over a box (``low``, ``high``: its corners in the CT's indices) round the bone: its
+    voxels darker than the surface level (``levels[0]``) that the bone encloses.
+
+    The box reaches beyond the bone on every side except where the field of view cuts the bone, so a dark region
+    that touches a side of the box not on the CT's edge is outside the bone; the others (marrow, the cancellous
+    core between a flat bone's tables, open only where the scan cuts them) are inside. ``walls`` (other objects, a
+    bracket through the cortex) are not dark. Two things keep a thin cortex from leaking: the regions are told apart
+    once opened by a cube about ``OPENING_MM`` wide (a hole a few voxels wide through it joins nothing), and below
+    the threshold (``levels[1]``), which a cortex that dips under the surface level still stands above (the
+    marrow); the inside found is grown back two voxels into the dark. None when every side of the box is on the
+    CT's edge (the bone fills the field of view), so that none can be told.
+    """
+    open_sides = [
+        (axis, side)
+        for axis in range(3)
+        for side, on_edge in ((0, low[axis] == 0), (-1, high[axis] == volume.voxels.shape[axis]))
+        if not on_edge
+    ]
+    if not open_sides:
+        return None
+    inside = np.zeros(image.shape, dtype=bool)
+    size = max(1, int(round(OPENING_MM / float(volume.spacing.max())))) | 1  # odd, at least 1
+    for level in levels:
+        dark = ((image < level) & ~walls).view(np.uint8)
+        # An opening by a cube, axis by axis (min then max filters are separable, a cube's erosion is not cheap).
+        opened = ndimage.maximum_filter(ndimage.minimum_filter(dark, size=size), size=size).view(bool)
+        labels, _ = ndimage.label(opened)
+        outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
+        inside |= (labels > 0) & ~np.isin(labels, outside)
+    return ndimage.binary_dilation(inside, iterations=2, mask=(image < levels[0]) & ~walls)
+
+
+def _next_to_body(volume, segmentation, vertices_ijk):
+    """(M,) booleans: IPC vertices (indices in the segmentation's box) within ``body_margin_mm`` of the voxels of
+    the reference body joined to the bone (its bracket's stub, and the corner the blur fills round it)."""
+    if segmentation.body is None or not segmentation.body.any() or len(vertices_ijk) == 0:
+        return np.zeros(len(vertices_ijk), dtype=bool)
+    from scipy.spatial import cKDTree
+
+    spacing = volume.spacing
+    margin = segmentation.body_margin_mm
+    reach = np.ceil(margin / spacing).astype(int) + 1
+    low = np.maximum(np.floor(vertices_ijk.min(axis=0)).astype(int) - reach, 0)
+    high = np.minimum(np.ceil(vertices_ijk.max(axis=0)).astype(int) + reach + 1, segmentation.body.shape)
+    body = np.argwhere(segmentation.body[tuple(slice(a, b) for a, b in zip(low, high))]) + low
+    if len(body) == 0:
+        return np.zeros(len(vertices_ijk), dtype=bool)
+    # The grid's axes are orthogonal: index times spacing is a distance-preserving frame (mm).
+    distance, _ = cKDTree(body * spacing).query(vertices_ijk * spacing, distance_upper_bound=margin)
+    return np.isfinite(distance)
 
 
 def _without_vertices(vertices, triangles, drop):
@@ -208,18 +500,28 @@ def fill_axis(mask, spacing):
     return int(np.argmax([(p[-1] - p[0] + 1) * s for p, s in zip(present, spacing)]))
 
 
+#: The blurred edge of metal reaches this far (mm) into what is round it.
+METAL_EDGE_MM = 2.5
+
+
 def _surface_level(image, mask, threshold, level, spacing):
     if level == "threshold":
         return threshold
     if level != "half-max":
         return float(level)
-    if spacing.max() > HALF_MAX_MAX_VOXEL_MM:
+    if spacing.max() > HALF_MAX_MAX_VOXEL_MM + 1e-6:
         logger.info("voxels of %.1f mm do not resolve the cortex: bone surface at the threshold", spacing.max())
         return threshold
     # The cortex's brightness, read just beneath the blurred edge (1 to 4 voxels deep), metal left out.
     rim = ndimage.binary_erosion(mask, iterations=1) & ~ndimage.binary_erosion(mask, iterations=4)
+    metal = image >= METAL_HU
+    if metal.any():  # a pin or screw through the bone: its blurred edge, brighter than cortex, left out too
+        reach = int(np.ceil(METAL_EDGE_MM / float(spacing.min())))
+        rim &= ~ndimage.binary_dilation(metal, iterations=reach)
     rim_values = image[rim]
-    cortex = float(np.percentile(rim_values[rim_values < METAL_HU], 95))
+    if rim_values.size == 0:
+        return threshold
+    cortex = float(np.percentile(rim_values, 95))
     outside = float(
         np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)])
     )
@@ -227,20 +529,6 @@ def _surface_level(image, mask, threshold, level, spacing):
         "bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2, cortex, outside
     )
     return 0.5 * (cortex + outside)
-
-
-def iso_surface(image, level):
-    """Iso-surface of a 3-D array at ``level`` (VTK flying edges): vertices (M, 3) in index units, triangles (K, 3)."""
-    from vtkmodules.vtkFiltersCore import vtkFlyingEdges3D
-
-    edges = vtkFlyingEdges3D()
-    edges.SetInputData(image_data(image))
-    edges.SetValue(0, float(level))
-    edges.ComputeNormalsOff()
-    edges.ComputeGradientsOff()
-    edges.ComputeScalarsOff()
-    edges.Update()
-    return triangle_arrays(edges.GetOutput())
 
 
 def resample_points(points, spacing_mm):

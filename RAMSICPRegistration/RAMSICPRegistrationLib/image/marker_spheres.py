@@ -1,80 +1,80 @@
 """Automatic marker-sphere centres in the CT (the paper places them by hand and names that its main error).
 
-Real reference bodies often have posts and a frame as bright in CT as the spheres (dense polymer, aluminium), so
-spheres, posts and frame form one bright object. Detection therefore does not ask for isolated spheres:
+Nothing is assumed about which bright object is the bone, which part of the reference body is brightest, or that
+the spheres are above the bone threshold: real reference bodies have posts and frames brighter or dimmer than their
+spheres, plates the spheres touch, brackets that join the frame to the bone, and spheres from plastic to metal.
 
-1. **Candidates: where a ball fits.** In every bright object other than the bone, the distance of each voxel
-   to the object's edge (Euclidean distance transform, mm) peaks at a sphere's centre with the sphere's radius;
-   posts and frame are thinner and peak lower. Local peaks from ``CANDIDATE_DEPTH`` of the radius (a sphere with
-   a missing cap still holds a ball that large) to ``CANDIDATE_EXCESS_MM`` above it are candidates, deepest
-   first, one per sphere-sized neighbourhood: the erosion half of a morphological opening by a ball, whose
-   reconstruction the fit below replaces. The distance map is taken on a grid of about ``CANDIDATE_GRID_MM``
-   (the fit refines the centre). A rod's peaks are candidates too, and the fit rejects them. An object cut by
-   the edge of the field of view has no edge there, so a cut sphere is still found, and then flagged. A matched
-   filter (FFT correlation with a ball-minus-shell template) found the same spheres on every reference body of
-   ``benchmarks/bench_marker_candidates.py`` in twice the time. Spheres joined to the bone itself (by a
-   bright bracket) are not looked for: the bone's object is left out.
-2. **Fit on the sphere's own surface.** Around a candidate, the half-maximum iso-surface (the level half-way
-   between the sphere's core and its surroundings, both measured there, so blur does not bias it) gives sub-voxel
-   edge points. Only points within ``SHELL_WINDOW_MM`` of the sphere and whose outward normal points away from the
-   centre (within ``NORMAL_LIMIT_DEG``) are kept: the post's stub and the frame leave, as their surfaces run
-   across the radius. A robust sphere fit (``fit_sphere``) on those points, repeated from the new centre, gives
-   the centre, the radius and the residual.
+1. **Candidates: where the CT has the surface of a ball of the marker's radius** (``sphere_candidates``: a Hough
+   transform on a coarse grid of the whole denoised CT, every object included, the bone's too).
+2. **Fit on the sphere's own edge, ray by ray.** From a candidate's centre, ``RAYS`` rays are cast through the
+   sphere's surface; along each, the edge is where the denoised CT falls through half-way between the sphere's
+   inside (read in a shell clear of a stem in its centre) and that ray's own outside, 2 to 2.5 mm beyond the
+   radius: air on most rays, a dimmer post or plate the sphere touches or is sunk into on others, so every edge
+   point is a half-maximum point, unbiased by blur, whatever the surroundings. Rays whose outside is about as
+   bright as the sphere, or brighter (its post, a bright frame), give no edge. A robust sphere fit
+   (``fit_sphere``) on the edge points, repeated from the new centre, gives the centre, the radius and the
+   residual.
 3. **Status**, for every sphere:
 
    * ``ok``: radius within 0.6 mm of the nominal, RMS residual under 0.2 mm, at least 85 % of its surface seen,
      and wholly inside the field of view;
-   * ``partial``: part of the surface is missing (Fig. 4a's defects, or cut by the field of view): its centre
-     rests on what remains;
+   * ``partial``: part of the surface is missing (Fig. 4a's defects, a frame it is sunk into), or it is cut by the
+     field of view (the edge of the volume, or padding outside the reconstruction, <= -1500 HU): its centre rests
+     on what remains;
    * ``deformed``: the radius or the residual is off: the sphere is not round in the image.
 
    A candidate whose fit is far from any sphere (radius off by more than ``NOT_A_SPHERE_MM``, or less than
    ``MIN_COVERAGE`` of a surface) is not a marker and is dropped.
+4. **Pairing with the tool** (``core.marker_geometry.pair_by_geometry``): the tool's inter-marker distances choose
+   its markers among the spheres found and number them; a sphere that fits no marker (a spare sphere, a round
+   bone feature) is left unnumbered; a marker not found is located where the others put it
+   (``MarkerDetection.missing``), and said to be inside or outside the field of view.
 
-Only ``ok`` spheres feed the coarse registration unless the user accepts the others. Centres are paired with the
-tool's markers by their distances (``order_to_tool``, ``match_to_tool``); markers are numbered from 1.
+Only ``ok`` spheres paired with a marker feed the coarse registration unless the user accepts the others.
 """
 
-import itertools
 import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage, optimize
 
-from ..core.paired_point import rigid_procrustes
-from ..core.transforms import apply_transform
+from ..core.marker_geometry import PAIRING_TOLERANCE_MM, pair_by_geometry
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .ct_segmentation import iso_surface
+from .sphere_candidates import find_sphere_candidates
 
 logger = logging.getLogger(__name__)
 
 RADIUS_TOLERANCE_MM = 0.6
+#: A sphere whose clean edges lie off it (outliers of the fit) on more than this fraction of its rays is partial
+#: (twice this when at least 90 % of its surface is seen: a thick post's junction puts some edges off).
+MAX_OFF_SPHERE = 0.08
 RESIDUAL_LIMIT_MM = 0.2
 COVERAGE_LIMIT = 0.85
-#: A candidate centre lies at least this fraction of r deep in its bright object: a sphere whose cap is missing
-#: down to near its centre (the phantom's partial sphere, or one cut by the field of view) still holds such a ball.
-CANDIDATE_DEPTH = 0.45
-#: ... and at most r + this (mm); deeper points lie in something thicker than a sphere.
-CANDIDATE_EXCESS_MM = 1.5
-#: The distance map is computed on a grid about this fine (mm), whatever the CT's voxels: the fit refines.
-CANDIDATE_GRID_MM = 1.0
-#: An object whose bounding box holds fewer voxels than this fraction of a sphere is too small to be one.
-MIN_SPHERE_VOLUME = 0.3
-#: Inside a marker sphere, at 0.75 r from its centre, at least this fraction is bright, even with a cap missing
-#: (0.46 for a hemisphere); around a 6 mm rod about 0.35. A cheap look that spares the fit most rods.
-FILLED_INSIDE = 0.4
-#: Around a marker sphere, 2 mm beyond its surface, only its post and perhaps the frame are bright: a candidate
-#: whose surroundings are brighter than this fraction lies inside something bigger (a bone fragment, a vessel).
-CLEAR_AROUND = 0.5
-#: Edge points farther than this from the sphere's surface (mm) are not the sphere's.
-SHELL_WINDOW_MM = 1.5
-#: Edge points whose outward normal turns more than this from the radial direction are posts or frame.
-NORMAL_LIMIT_DEG = 30.0
 #: A fit whose radius is off by more than this (mm), or that sees less than MIN_COVERAGE, is not a marker sphere
 #: (rods of the frame fit spheres about 1.5 mm too small; the phantom's deformed sphere is 0.4 mm too large).
-NOT_A_SPHERE_MM = 1.0
+NOT_A_SPHERE_MM = 0.75
 MIN_COVERAGE = 0.35
+#: Rays cast from a candidate's centre to find its edge, sampled every RAY_STEP_MM; at least MIN_RAYS must find it.
+RAYS = 400
+RAY_STEP_MM = 0.1
+MIN_RAYS = 60
+#: A ray finds an edge where the sphere is at least this much brighter (HU) than the ray's own outside.
+EDGE_CONTRAST_HU = 150.0
+#: ... and whose outside is within this (HU, or a tenth of the contrast) of the sphere's usual surroundings.
+STREAK_TOLERANCE_HU = 100.0
+#: The sphere's brightness is read in this shell inside it (fractions of r): clear of a stem in its centre.
+INSIDE_SHELL = (0.55, 0.85)
+#: ... and its surroundings' in this one outside it (mm beyond r).
+OUTSIDE_SHELL_MM = (1.5, 3.0)
+#: A sphere is wholly in the field of view when it and this much more (mm) plus a voxel lie inside the volume's
+#: voxel centres, with no padding (values at or below OUTSIDE_FIELD_OF_VIEW_HU) among them.
+FIELD_OF_VIEW_MARGIN_MM = 0.25
+#: Reconstructions pad the outside of their field of view (the corners of a round one) with a value no CT of
+#: air reaches: -3024, -2048 HU. (Padding at -1024 looks like air; a sphere cut by it is 'partial' by coverage.)
+OUTSIDE_FIELD_OF_VIEW_HU = -1500.0
+#: An unpaired sphere this close (mm) to a missing marker's expected place is that marker, though it fits badly.
+NEAR_EXPECTED_MM = 5.0
 STATUSES = ("ok", "partial", "deformed")
 
 
@@ -83,8 +83,9 @@ class MarkerSphere:
     """One fitted sphere: centre (3,) RAS mm, radius and RMS residual (mm), surface coverage (0..1), status.
 
     ``note`` says in words why a sphere is not ``ok``; ``label`` is the label of its voxels in the
-    BoneSegmentation's labels (the bright object it belongs to, or its own voxels after ``label_sphere_voxels``);
-    ``number`` is the tool marker it was paired with (1-based; 0 until paired, or when it cannot be).
+    BoneSegmentation's labels (the bright object it belongs to, 0 when it is below the bone threshold, or its own
+    voxels after ``label_sphere_voxels``); ``number`` is the tool marker it was paired with (1-based; 0 until
+    paired, or when it cannot be); ``level_hu`` the iso-level its surface was fitted at.
     """
 
     centre: np.ndarray
@@ -96,6 +97,7 @@ class MarkerSphere:
     label: int
     note: str = ""
     number: int = 0
+    level_hu: float = 0.0
 
     def to_dict(self):
         return {
@@ -111,12 +113,31 @@ class MarkerSphere:
 
 
 @dataclass(frozen=True)
+class MissingMarker:
+    """A tool marker with no sphere found: where the other markers put it (RAS mm), and whether the CT holds it."""
+
+    number: int
+    expected: np.ndarray
+    in_field_of_view: bool
+
+    def to_dict(self):
+        return {"number": self.number, "expected": self.expected.tolist(), "in_field_of_view": self.in_field_of_view}
+
+
+@dataclass(frozen=True)
 class MarkerDetection:
-    """All marker spheres found, the number of other candidates rejected, and the warnings about them."""
+    """The marker spheres found, the number of candidates rejected, warnings; with a tool, its pairing
+    (``core.marker_geometry.GeometricPairing``, or None when fewer than 3 spheres fit it) and the markers missing.
+    ``tied``: when no 3 spheres could be paired, the spheres (clean or partial) that lie at one of the tool's
+    pairwise marker distances from another: the reference body's, though too few or too sunk in to number; or, when
+    there are none, the ball-shaped candidates the tool's geometry pairs (status 'hidden', never usable)."""
 
     spheres: tuple
     warnings: tuple
     rejected: int = 0
+    pairing: object = None
+    missing: tuple = ()
+    tied: tuple = ()
 
     @property
     def ok_centres(self):
@@ -124,41 +145,97 @@ class MarkerDetection:
         return np.array([sphere.centre for sphere in self.spheres if sphere.status == "ok"]).reshape(-1, 3)
 
 
-def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_DIAMETER_MM):
-    """Find and fit the marker spheres in the segmentation's bright objects other than the bone.
+def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_DIAMETER_MM, tool_markers=None):
+    """Find and fit the marker spheres anywhere in the CT; with ``tool_markers``, choose and number the tool's.
 
     Args:
-        volume: the CTVolume that was segmented (its geometry).
-        segmentation: BoneSegmentation (its ``smoothed`` image and object labels).
-        expected: how many spheres the reference body has.
+        volume: the CTVolume that was segmented (its geometry and raw values).
+        segmentation: BoneSegmentation (its denoised ``smoothed`` image over its ``box``, and its labels).
+        expected: how many spheres the reference body has (``len(tool_markers)`` when they are given).
         diameter_mm: the spheres' diameter.
+        tool_markers: (K, 3) the reference body's marker geometry (mm), or None.
 
     Returns:
-        MarkerDetection; its warnings say when fewer or more than ``expected`` spheres were found, or when a
-        sphere is partial or deformed, and what to do.
+        MarkerDetection; its warnings say when fewer or more spheres than expected were found, which marker is
+        missing and where it should be, or when a sphere is partial or deformed, and what to do.
     """
     radius = diameter_mm / 2.0
+    if tool_markers is not None:
+        expected = len(tool_markers)
     spheres, rejected = [], 0
-    for centre, label, plausible in _candidates(volume, segmentation, radius):
-        sphere = _fit_candidate(volume, segmentation.smoothed, centre, radius, label) if plausible else None
+    candidates = find_sphere_candidates(volume, segmentation.smoothed, segmentation.origin, radius)
+    for candidate in candidates:
+        sphere = _fit_candidate(volume, segmentation, candidate.centre, radius)
         if sphere is None:
             rejected += 1
         else:
             spheres.append(sphere)
     spheres = _without_duplicates(spheres, radius)
-    warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"]
-    good = sum(sphere.status == "ok" for sphere in spheres)
-    if len(spheres) != expected:
+    pairing, missing, warnings, tied = None, (), [], ()
+    if tool_markers is not None:
+        found = spheres
+        spheres, pairing, missing, warnings, dropped = _pair_with_tool(volume, spheres, tool_markers, radius)
+        rejected += dropped
+        if pairing is None:
+            tied = _tied_by_tool_distances(found, tool_markers) or _candidates_at_tool_distances(
+                volume, segmentation, [candidate.centre for candidate in candidates], tool_markers, radius
+            )
+    warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"] + warnings
+    good = sum(sphere.status == "ok" and (tool_markers is None or sphere.number > 0) for sphere in spheres)
+    if tool_markers is None and len(spheres) != expected:
         warnings.append(
             f"found {len(spheres)} marker-sphere candidates ({rejected} other bright spots rejected by their "
-            f"shape), expected {expected}: check that the reference body is in the field of view and the "
-            "threshold is below the spheres' brightness, or place the missing centres by hand"
+            f"shape), expected {expected}: check that the reference body is in the field of view, or place the "
+            "missing centres by hand"
         )
-    elif good < expected:
+    elif good < expected and (tool_markers is None or pairing is not None):
         warnings.append(f"only {good} of {expected} spheres are clean; the coarse registration needs at least 3")
     for warning in warnings:
         logger.info("marker detection: %s", warning)
-    return MarkerDetection(spheres=tuple(spheres), warnings=tuple(warnings), rejected=rejected)
+    return MarkerDetection(tuple(spheres), tuple(warnings), rejected, pairing, tuple(missing), tuple(tied))
+
+
+def _candidates_at_tool_distances(volume, segmentation, centres, tool_markers, radius):
+    """When no sphere could be fitted where the tool's markers are (spheres sunk into the frame, their edges hidden):
+    the ball-shaped candidates that the tool's geometry pairs (3 or more, ``pair_by_geometry``), as spheres of status
+    'hidden' (not usable: for the bone's recognition only, which must know where the reference body is)."""
+    if len(centres) < 3:
+        return ()
+    try:
+        pairing = pair_by_geometry(centres, tool_markers)
+    except ValueError:
+        return ()
+    return tuple(
+        MarkerSphere(
+            centre=np.asarray(centres[row], float),
+            radius_mm=radius,
+            residual_mm=float("nan"),
+            coverage=0.0,
+            status="hidden",
+            surface_points=0,
+            label=_label_at(volume, segmentation, np.asarray(centres[row], float)),
+            note="a ball-shaped spot at the tool's distances from others, its edge not found",
+        )
+        for row in pairing.indices
+        if row >= 0
+    )
+
+
+def _tied_by_tool_distances(spheres, tool_markers):
+    """The spheres, clean or partial (not deformed), within PAIRING_TOLERANCE_MM of one of the tool's pairwise
+    marker distances from another such sphere: two of the tool's markers (a round bump of bone is not at the tool's
+    distance from a sphere of the marker's size), even when they cannot be numbered (fewer than 3 in view, or sunk
+    into the frame)."""
+    round_ones = [sphere for sphere in spheres if sphere.status != "deformed"]
+    markers = np.asarray(tool_markers, float)
+    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
+    tied = set()
+    for i, first in enumerate(round_ones):
+        for j in range(i + 1, len(round_ones)):
+            apart = float(np.linalg.norm(first.centre - round_ones[j].centre))
+            if np.abs(distances - apart).min() <= PAIRING_TOLERANCE_MM:
+                tied.update((i, j))
+    return tuple(round_ones[i] for i in sorted(tied))
 
 
 def sphere_warning(sphere):
@@ -199,65 +276,6 @@ def fit_sphere(points, inlier_limit_mm=0.1):
     return centre, float(radius), rms, keep
 
 
-def order_to_tool(centres, tool_markers):
-    """Order detected centres (K, 3) like the tool's markers (K, 3) by trying every pairing.
-
-    Returns:
-        (permutation, fre_mm): ``centres[permutation]`` pairs with ``tool_markers``; the FRE of that pairing.
-    """
-    if len(centres) != len(tool_markers):
-        raise ValueError(f"{len(centres)} centres for {len(tool_markers)} tool markers; detect or place them all")
-    best = (None, np.inf)
-    for permutation in itertools.permutations(range(len(centres))):
-        ordered = centres[list(permutation)]
-        fitted = apply_transform(rigid_procrustes(tool_markers, ordered), tool_markers)
-        fre = float(np.sqrt(np.mean(np.sum((fitted - ordered) ** 2, axis=1))))
-        if fre < best[1]:
-            best = (np.array(permutation), fre)
-    return best
-
-
-def match_to_tool(centres, tool_markers, usable=None, max_distance_mm=3.0):
-    """Which tool marker each detected centre is, when some are missing or flagged.
-
-    The usable centres (all when ``usable`` is None), if there are at least 3, are paired with the tool's markers
-    by trying every assignment (the smallest FRE wins); with fewer, all centres are. The others then take the
-    free marker nearest to them under that pairing's transform, if within ``max_distance_mm``.
-
-    Args:
-        centres: (K, 3) detected centres, K <= number of tool markers.
-        tool_markers: (N, 3) the tool's marker geometry.
-        usable: optional (K,) booleans.
-
-    Returns:
-        (numbers, fre_mm): (K,) tool marker numbers (1-based; 0 where unknown) and the FRE of the pairing
-        (None when fewer than 3 centres could be paired: then every number is 0).
-    """
-    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-    tool_markers = np.asarray(tool_markers, dtype=np.float64)
-    usable = np.ones(len(centres), dtype=bool) if usable is None else np.asarray(usable, dtype=bool)
-    numbers = np.zeros(len(centres), dtype=int)
-    basis = np.flatnonzero(usable) if usable.sum() >= 3 else np.arange(len(centres))
-    if len(basis) < 3 or len(centres) > len(tool_markers):
-        return numbers, None
-    best = (None, np.inf, None)
-    for assignment in itertools.permutations(range(len(tool_markers)), len(basis)):
-        chosen = tool_markers[list(assignment)]
-        transform = rigid_procrustes(chosen, centres[basis])
-        fre = float(np.sqrt(np.mean(np.sum((apply_transform(transform, chosen) - centres[basis]) ** 2, axis=1))))
-        if fre < best[1]:
-            best = (assignment, fre, transform)
-    assignment, fre, transform = best
-    numbers[basis] = np.array(assignment) + 1
-    predicted = apply_transform(transform, tool_markers)
-    for index in np.setdiff1d(np.arange(len(centres)), basis):
-        free = [m for m in range(len(tool_markers)) if m + 1 not in numbers]
-        distances = np.linalg.norm(predicted[free] - centres[index], axis=1)
-        if len(free) and distances.min() <= max_distance_mm:
-            numbers[index] = free[int(np.argmin(distances))] + 1
-    return numbers, fre
-
-
 def sphere_values(spheres):
     """Labelmap value of each sphere: 1 + n for marker n, then the spheres not paired with a marker (2 + the
     highest marker number, ...); 1 is the bone."""
@@ -270,7 +288,7 @@ def sphere_values(spheres):
 
 
 def sphere_labelmap(segmentation, spheres):
-    """(I, J, K) labelmap: 1 for the bone, 1 + n for marker n's sphere (``sphere_values``)."""
+    """(I, J, K) labelmap of the whole CT: 1 for the bone, 1 + n for marker n's sphere (``sphere_values``)."""
     return segmentation.labelmap([sphere.label for sphere in spheres], sphere_values(spheres))
 
 
@@ -278,135 +296,78 @@ def label_sphere_voxels(volume, segmentation, spheres):
     """Give each sphere's own voxels a label of their own in ``segmentation.labels`` (in place), split from the
     posts and frame they touch, so a labelmap shows the spheres and not the whole reference body.
 
-    A sphere that is its own connected component keeps its label. Returns the spheres with their labels.
+    A sphere's own voxels are those of its object within 1 mm of its fitted surface; a sphere below the bone
+    threshold (label 0) gets the voxels above its fit's level there. A sphere that is its own connected
+    component keeps its label. Returns the spheres with their labels.
     """
     labels = segmentation.labels
     next_label = int(labels.max()) + 1
     labelled = []
     for sphere in spheres:
-        box, offsets = _box_offsets(volume, sphere.centre, sphere.radius_mm + 1.0)
+        box, offsets = _local_box(volume, segmentation, sphere.centre, sphere.radius_mm + 1.0)
         if box is None:
             labelled.append(sphere)
             continue
         ball = np.linalg.norm(offsets, axis=-1) <= sphere.radius_mm + 1.0
         local = labels[box]
-        own = ball & (local == sphere.label)
-        if own.sum() == np.count_nonzero(labels == sphere.label):
-            labelled.append(sphere)
-            continue
+        if sphere.label > 0:
+            own = ball & (local == sphere.label)
+            if own.sum() == np.count_nonzero(labels == sphere.label):
+                labelled.append(sphere)
+                continue
+        else:
+            own = ball & (local == 0) & (segmentation.smoothed[box] >= sphere.level_hu)
         local[own] = next_label
         labelled.append(replace(sphere, label=next_label))
         next_label += 1
     return tuple(labelled)
 
 
-def _candidates(volume, segmentation, radius):
-    """(centre (3,) RAS, object label, plausible) of every place in a non-bone object where a near-sphere-sized
-    ball fits; ``plausible`` is False where a quick look (``_shaped_like_a_marker``) already rules a sphere out."""
-    # The distance map needs no finer grid than about CANDIDATE_GRID_MM: the fit refines the centre.
-    step = np.maximum(1, np.floor(CANDIDATE_GRID_MM / volume.spacing)).astype(int)
-    spacing = volume.spacing * step
-    slices = ndimage.find_objects(segmentation.labels)
-    footprint = _ball_footprint(spacing, max(1.0, 1.5 * spacing.max()))  # at least the 18 nearest neighbours
-    smallest = MIN_SPHERE_VOLUME * 4.0 / 3.0 * np.pi * radius**3 / float(np.prod(volume.spacing))  # voxels
-    found = []
-    for label in segmentation.object_labels:
-        region = slices[label - 1]
-        if np.prod([s.stop - s.start for s in region]) < smallest:
-            continue  # even its bounding box cannot hold what is left of a sphere
-        low = np.array([max(s.start - 2 * k, 0) for s, k in zip(region, step)])
-        high = np.array([min(s.stop + 2 * k, n) for s, k, n in zip(region, step, segmentation.labels.shape)])
-        box = tuple(slice(a, b, k) for a, b, k in zip(low, high, step))
-        mask = segmentation.labels[box] == label
-        # Padding gives the object background around it, except where it meets the edge of the field of view.
-        depth = ndimage.distance_transform_edt(mask, sampling=spacing)
-        if depth.max() < CANDIDATE_DEPTH * radius:
-            continue
-        peaks = (depth == ndimage.maximum_filter(depth, footprint=footprint)) & (depth >= CANDIDATE_DEPTH * radius)
-        peaks &= depth <= radius + CANDIDATE_EXCESS_MM
-        indices = np.argwhere(peaks)
-        order = np.argsort(-depth[peaks], kind="stable")
-        kept = []
-        for index in indices[order]:
-            centre = volume.ijk_to_ras_points((index * step + low)[None])[0]
-            if all(np.linalg.norm(centre - other) > radius for other in kept):
-                kept.append(centre)
-        found.extend((c, label, _shaped_like_a_marker(volume, mask, low, step, c, radius)) for c in kept)
-    return found
-
-
-def _shaped_like_a_marker(volume, mask, low, step, centre, radius):
-    """A cheap look before the fit: the candidate's object fills at least ``FILLED_INSIDE`` of a sphere of 0.75 r
-    around it (a marker sphere does, even with a cap missing; a post or a frame rod does not), and at most
-    ``CLEAR_AROUND`` of a sphere 2 mm outside r (a marker sphere has only its post there; a point deep inside a
-    bigger object has its object all round)."""
-    directions = _fibonacci_directions(100)
-    shape = np.array(mask.shape)
-
-    def filled(distance, outside_counts):
-        index = np.rint((volume.ras_to_ijk_points(centre + distance * directions) - low) / step).astype(int)
-        inside = np.all((index >= 0) & (index < shape), axis=1)
-        hits = np.full(len(index), outside_counts)
-        hits[inside] = mask[tuple(index[inside].T)]
-        return hits.mean()
-
-    # Beyond the crop there is the edge of the field of view or other objects: count it as the sphere inside
-    # (a cut sphere), as clear outside.
-    return filled(0.75 * radius, True) >= FILLED_INSIDE and filled(radius + 2.0, False) <= CLEAR_AROUND
-
-
-def _ball_footprint(spacing, radius_mm):
-    half = np.maximum(np.ceil(radius_mm / spacing).astype(int), 1)
-    grid = np.stack(np.meshgrid(*[np.arange(-h, h + 1) for h in half], indexing="ij"), axis=-1) * spacing
-    return np.linalg.norm(grid, axis=-1) <= radius_mm + 1e-9
-
-
-def _box_offsets(volume, centre, half_mm):
-    """Index box around an RAS point reaching ``half_mm`` in every direction, and the voxels' RAS offsets."""
-    box, ras = volume.voxels_within(centre - half_mm, centre + half_mm)
-    if box is None or min(s.stop - s.start for s in box) < 2:
+def _local_box(volume, segmentation, centre, half_mm):
+    """The box (slices into the segmentation's arrays) around an RAS point reaching ``half_mm`` every way, and
+    its voxels' RAS offsets from the point (I, J, K, 3); (None, None) outside the segmentation's box."""
+    full, ras = volume.voxels_within(centre - half_mm, centre + half_mm)
+    if full is None:
         return None, None
-    return box, ras - centre
+    origin, shape = segmentation.origin, np.array(segmentation.smoothed.shape)
+    low = np.array([s.start for s in full]) - origin
+    high = np.array([s.stop for s in full]) - origin
+    clipped_low, clipped_high = np.maximum(low, 0), np.minimum(high, shape)
+    if (clipped_high - clipped_low < 2).any():
+        return None, None
+    trim = tuple(slice(a - b, c - b) for a, b, c in zip(clipped_low, low, clipped_high))
+    return tuple(slice(a, b) for a, b in zip(clipped_low, clipped_high)), ras[trim] - centre
 
 
-def _fit_candidate(volume, smoothed, centre, radius, label):
-    box, offsets = _box_offsets(volume, centre, radius + 3.5)
+def _fit_candidate(volume, segmentation, centre, radius):
+    box, offsets = _local_box(volume, segmentation, centre, radius + OUTSIDE_SHELL_MM[1] + 1.0)
     if box is None:
         return None
-    image = smoothed[box].astype(np.float64)
+    image = segmentation.smoothed[box]
     distance = np.linalg.norm(offsets, axis=-1)
-    core = distance <= radius - 2.0
-    shell = (distance >= radius + 1.5) & (distance <= radius + 3.0)
-    if not core.any() or not shell.any():
+    inside = (distance >= INSIDE_SHELL[0] * radius) & (distance <= INSIDE_SHELL[1] * radius)
+    outside = (distance >= radius + OUTSIDE_SHELL_MM[0]) & (distance <= radius + OUTSIDE_SHELL_MM[1])
+    if not inside.any() or not outside.any():
         return None
-    level = 0.5 * (float(np.median(image[core])) + float(np.median(image[shell])))
-    vertices, _ = iso_surface(image, level)
-    if len(vertices) < 50:
-        return None
-    low = np.array([s.start for s in box])
-    points = volume.ijk_to_ras_points(vertices + low)
-    normals = _outward_normals(volume, image, vertices)
-    selected = None
-    for _ in range(3):
+    inside_hu = float(np.median(image[inside]))
+    low = np.array([s.start for s in box]) + segmentation.origin
+    directions = _fibonacci_directions(RAYS)
+    for _ in range(4):
         previous = centre
-        offsets_to_centre = points - centre
-        distance_to_centre = np.linalg.norm(offsets_to_centre, axis=1)
-        radial = offsets_to_centre / np.maximum(distance_to_centre, 1e-9)[:, None]
-        selected = (np.abs(distance_to_centre - radius) <= SHELL_WINDOW_MM) & (
-            np.einsum("ij,ij->i", radial, normals) >= np.cos(np.radians(NORMAL_LIMIT_DEG))
-        )
-        if selected.sum() < 50:
+        along, valid = _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
+        if valid.sum() < MIN_RAYS:
             return None
-        centre, fitted_radius, rms, keep = fit_sphere(points[selected])
+        points = centre + along[valid, None] * directions[valid]
+        centre, fitted_radius, rms, keep = fit_sphere(points)
         if abs(fitted_radius - radius) > NOT_A_SPHERE_MM:
             return None
-        if np.linalg.norm(centre - previous) < 0.01:
-            break  # the window would select the same points again
-    inliers = points[selected][keep]
+        if np.linalg.norm(centre - previous) < 0.005:
+            break  # the rays from the new centre would find the same edges
+    inliers = points[keep]
     coverage = _coverage(inliers - centre)
     if coverage < MIN_COVERAGE:
         return None
-    status, note = _status(volume, centre, radius, fitted_radius, rms, coverage)
+    status, note = _status(volume, centre, radius, fitted_radius, rms, coverage, 1.0 - float(keep.mean()))
     return MarkerSphere(
         centre=centre,
         radius_mm=fitted_radius,
@@ -414,17 +375,88 @@ def _fit_candidate(volume, smoothed, centre, radius, label):
         coverage=coverage,
         status=status,
         surface_points=int(keep.sum()),
-        label=int(label),
+        label=_label_at(volume, segmentation, centre),
         note=note,
+        level_hu=0.5 * (inside_hu + float(np.median(image[outside]))),
     )
 
 
-def _status(volume, centre, radius, fitted_radius, rms, coverage):
+def _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu):
+    """Where each ray from ``centre`` crosses the sphere's edge (mm from the centre), and which rays have one.
+
+    Along each ray the image is sampled every RAY_STEP_MM from 2.5 mm inside the nominal radius to 2.5 mm outside;
+    the edge is where it falls through half-way between the sphere's inside (``inside_hu``) and this ray's own
+    outside (its samples 2 to 2.5 mm beyond the radius): air, a dimmer post or plate, or soft tissue. A ray whose
+    outside is not at least EDGE_CONTRAST_HU darker (a post or frame as bright as the sphere, or brighter), or
+    that leaves the CT, has none.
+    """
+    along = np.arange(radius - 2.5, radius + 2.5 + 1e-9, RAY_STEP_MM)
+    ras = centre + along[None, :, None] * directions[:, None, :]
+    ijk = volume.ras_to_ijk_points(ras.reshape(-1, 3)) - low
+    profiles = ndimage.map_coordinates(image, ijk.T, order=1, mode="constant", cval=np.nan).reshape(ras.shape[:2])
+    outside_hu = np.mean(profiles[:, along >= radius + 2.0], axis=1)
+    # Each ray's own inside, just within the edge: a streak that adds to a ray adds to both its ends.
+    own_inside = np.median(profiles[:, (along >= radius - 2.5) & (along <= radius - 1.5)], axis=1)
+    level = 0.5 * (own_inside + outside_hu)
+    valid = np.isfinite(profiles).all(axis=1) & (own_inside - outside_hu >= EDGE_CONTRAST_HU)
+    with np.errstate(invalid="ignore"):  # rays that leave the CT are NaN, and invalid already
+        valid &= np.abs(own_inside - inside_hu) <= 0.25 * (inside_hu - np.nanmedian(outside_hu))
+    below = profiles < level[:, None]
+    valid &= ~below[:, 0]
+    first = np.argmax(below, axis=1)  # the first sample below the level, going out
+    valid &= below.any(axis=1)
+    # A clean edge: nothing much brighter than the sphere just inside it (a metal stem in a plastic sphere, whose blur
+    # would push the edge out), and nothing back above the level outside it (a post or frame right beside it).
+    inner = profiles[:, along <= radius - 1.0]
+    with np.errstate(invalid="ignore"):
+        valid &= np.max(inner, axis=1) <= inside_hu + 0.5 * (inside_hu - outside_hu)
+    valid &= (below | (np.arange(len(along))[None, :] < first[:, None])).all(axis=1)
+    # A ray whose outside is off the sphere's usual surroundings (air, mostly) by more than a tenth of the contrast
+    # runs along a metal streak, which moves the edge: left out (the post's and frame's rays are left out above).
+    usual = np.median(outside_hu[valid]) if valid.any() else np.nan
+    valid &= np.abs(outside_hu - usual) <= max(STREAK_TOLERANCE_HU, 0.1 * (inside_hu - usual))
+    rows = np.arange(len(directions))
+    before, after = profiles[rows, np.maximum(first - 1, 0)], profiles[rows, first]
+    fraction = np.clip((before - level) / np.maximum(before - after, 1e-6), 0.0, 1.0)
+    return along[np.maximum(first - 1, 0)] + fraction * RAY_STEP_MM, valid
+
+
+def _label_at(volume, segmentation, centre):
+    index = np.rint(volume.ras_to_ijk_points(centre[None])[0]).astype(int) - segmentation.origin
+    if (index < 0).any() or (index >= np.array(segmentation.labels.shape)).any():
+        return 0
+    return int(segmentation.labels[tuple(index)])
+
+
+def cut_by_field_of_view(volume, centre, radius):
+    """True when a sphere (centre (3,) RAS, radius mm) is not wholly in the CT's field of view: within
+    ``FIELD_OF_VIEW_MARGIN_MM`` and a voxel of the volume's edge, or of padding outside the reconstruction."""
+    reach = radius + FIELD_OF_VIEW_MARGIN_MM + float(volume.spacing.max())
     ijk = volume.ras_to_ijk_points(centre[None])[0]
-    reach = (radius + 1.0) / volume.spacing + 1.0  # the sphere and its blurred edge, in voxels
-    if (ijk - reach < 0).any() or (ijk + reach > np.array(volume.voxels.shape) - 1).any():
+    last = np.array(volume.voxels.shape) - 1
+    if (np.minimum(ijk, last - ijk) * volume.spacing).min() < reach:
+        return True
+    box, ras = volume.voxels_within(centre - reach, centre + reach)
+    near = np.linalg.norm(ras - centre, axis=-1) <= reach
+    return bool((volume.voxels[box][near] <= OUTSIDE_FIELD_OF_VIEW_HU).any())
+
+
+def in_field_of_view(volume, point):
+    """True when an RAS point (3,) lies among the CT's voxel centres and not in padding outside the reconstruction."""
+    ijk = volume.ras_to_ijk_points(np.asarray(point, float)[None])[0]
+    index = np.rint(ijk).astype(int)
+    if (index < 0).any() or (index >= np.array(volume.voxels.shape)).any():
+        return False
+    return bool(volume.voxels[tuple(index)] > OUTSIDE_FIELD_OF_VIEW_HU)
+
+
+def _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere):
+    if cut_by_field_of_view(volume, centre, radius):
         return "partial", f"cut by the edge of the field of view, {100 * coverage:.0f} % of its surface seen"
     round_enough = abs(fitted_radius - radius) <= RADIUS_TOLERANCE_MM and rms <= RESIDUAL_LIMIT_MM
+    if round_enough and off_sphere > MAX_OFF_SPHERE * (2.0 if coverage >= 0.9 else 1.0):
+        # Clean edges that are not on the sphere: a cap cut off (Fig. 4a), a dent; its centre may have moved.
+        return "partial", f"{100 * off_sphere:.0f} % of the edge found lies off the sphere (a cap missing?)"
     if round_enough and coverage >= COVERAGE_LIMIT:
         return "ok", ""
     if round_enough:
@@ -434,15 +466,82 @@ def _status(volume, centre, radius, fitted_radius, rms, coverage):
     )
 
 
-def _outward_normals(volume, image, vertices):
-    """Unit outward normals (M, 3) RAS of iso-surface vertices (box index coordinates): down the gradient."""
-    gradients = np.stack(np.gradient(image), axis=0)
-    at_vertices = np.stack(
-        [ndimage.map_coordinates(gradients[a], vertices.T, order=1, mode="nearest") for a in range(3)], axis=1
-    )
-    # A gradient per index step becomes a gradient per mm through the inverse transpose of the voxel axes.
-    ras_gradient = at_vertices @ np.linalg.inv(volume.ijk_to_ras[:3, :3])
-    return -ras_gradient / np.maximum(np.linalg.norm(ras_gradient, axis=1, keepdims=True), 1e-12)
+def _pair_with_tool(volume, spheres, tool_markers, radius):
+    """Number the spheres by the tool's markers (``pair_by_geometry``); returns (spheres in the tool's order, then
+    unpaired clean ones; the pairing or None; the MissingMarkers; warnings; how many unpaired spheres were
+    dropped)."""
+    count = len(tool_markers)
+    try:
+        pairing = pair_by_geometry(
+            [sphere.centre for sphere in spheres],
+            tool_markers,
+            points_name="the sphere centres found in the CT",
+            reference_name="the reference body",
+        )
+    except ValueError:
+        clean = [sphere for sphere in spheres if sphere.status == "ok"]
+        return (
+            clean,
+            None,
+            (),
+            [
+                f"{len(spheres)} sphere(s) found, fewer than 3 of them at the distances of the reference body's "
+                f"{count} markers: check that the reference body is in the field of view and that this is its tool "
+                "(--tool), or place the centres by hand"
+            ],
+            len(spheres) - len(clean),
+        )
+    numbered, used = {}, set()
+    for marker, row in enumerate(pairing.indices):
+        if row >= 0:
+            numbered[marker + 1] = replace(spheres[row], number=marker + 1)
+            used.add(int(row))
+    missing, warnings = [], []
+    for marker in range(count):
+        if marker + 1 in numbered:
+            continue
+        expected = pairing.expected[marker]
+        near = [
+            (float(np.linalg.norm(spheres[row].centre - expected)), row)
+            for row in range(len(spheres))
+            if row not in used
+        ]
+        distance, row = min(near) if near else (np.inf, -1)
+        if distance <= NEAR_EXPECTED_MM:
+            # A sphere where the marker should be, off by more than the pairing allows: that marker, not round.
+            sphere = spheres[row]
+            note = f"{distance:.1f} mm from where the other markers put it" + (
+                f"; {sphere.note}" if sphere.note else ""
+            )
+            numbered[marker + 1] = replace(sphere, number=marker + 1, status="deformed", note=note)
+            used.add(row)
+            continue
+        in_view = in_field_of_view(volume, expected)
+        missing.append(MissingMarker(marker + 1, expected, in_view))
+        where = ", ".join(f"{value:.1f}" for value in expected)
+        warnings.append(
+            f"marker {marker + 1} not found: the other markers put its centre at ({where}) mm, "
+            + (
+                "inside the CT's field of view: check the CT there (a sphere hidden by metal, damaged, or too dim), "
+                "or place its centre by hand"
+                if in_view
+                else "outside the CT's field of view: scan the whole reference body, or go on with the others"
+            )
+        )
+    if pairing.ambiguous:
+        warnings.append(
+            f"the spheres fit the reference body's geometry in two ways (FRE {pairing.fre_mm:.2f} and "
+            f"{pairing.runner_up_fre_mm:.2f} mm): check which sphere is which marker"
+        )
+    if pairing.fre_mm > PAIRING_TOLERANCE_MM / 2:
+        warnings.append(
+            f"the sphere centres fit the reference body's geometry only to {pairing.fre_mm:.2f} mm (FRE): check "
+            "which NDI tool is mounted"
+        )
+    others = [sphere for row, sphere in enumerate(spheres) if row not in used and sphere.status == "ok"]
+    dropped = len(spheres) - len(used) - len(others)
+    ordered = [numbered[number] for number in sorted(numbered)] + others
+    return ordered, pairing, missing, warnings, dropped
 
 
 def _without_duplicates(spheres, radius):

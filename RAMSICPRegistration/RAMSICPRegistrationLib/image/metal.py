@@ -78,12 +78,17 @@ class MetalZone:
         return self.contains_ijk(volume.ras_to_ijk_points(points))
 
 
-def find_metal_zone(volume, smoothed, metal_hu=METAL_HU, reach_mm=STREAK_REACH_MM, near=None):
-    """The metal in a denoised CT (``smoothed``, (I, J, K) HU on ``volume``'s grid) and its zone.
+def find_metal_zone(volume, smoothed, metal_hu=METAL_HU, reach_mm=STREAK_REACH_MM, near=None, origin=(0, 0, 0)):
+    """The metal in a denoised CT and its zone.
 
     Args:
-        near: optional (low, high) voxel-index corners of the region the zone will be asked about (the bone's
-            box); metal is then looked for there and as far around it as the zone reaches, not everywhere.
+        smoothed: denoised HU over a box of ``volume``'s grid whose first voxel is ``origin`` (3,) (the whole
+            grid by default).
+        near: optional (low, high) corners, in ``smoothed``'s indices, of the region the zone will be asked about
+            (the bone's box); metal is then looked for there and as far around it as the zone reaches, not
+            everywhere.
+
+    The zone's ``metal_ijk`` are indices in the whole CT.
     """
     spacing = volume.spacing
     margin = max(METAL_MARGIN_MM, 2.0 * float(spacing.max()))
@@ -93,6 +98,7 @@ def find_metal_zone(volume, smoothed, metal_hu=METAL_HU, reach_mm=STREAK_REACH_M
         low = np.maximum(np.asarray(near[0]) - reach, 0)
         high = np.minimum(np.asarray(near[1]) + reach, high)
     metal_ijk = np.argwhere(smoothed[tuple(slice(a, b) for a, b in zip(low, high))] >= metal_hu) + low
+    metal_ijk = metal_ijk + np.asarray(origin, dtype=int)
     return MetalZone(
         metal_mm3=float(len(metal_ijk) * np.prod(spacing)),
         centre=volume.ijk_to_ras_points(metal_ijk.mean(axis=0)[None])[0] if len(metal_ijk) else None,

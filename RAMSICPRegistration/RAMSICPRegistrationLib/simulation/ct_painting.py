@@ -264,12 +264,13 @@ def paint_metal(volume, rod):
     return box, fraction_inside(signed, float(np.mean(volume.spacing)))
 
 
-def add_metal_streaks(volume, box, metal_fraction, towards=None, count=STREAK_COUNT):
+def add_metal_streaks(volume, box, metal_fraction, towards=None, count=STREAK_COUNT, amplitude_hu=STREAK_HU):
     """Add streaks in every slice (k) that cuts the metal (see the module docstring for the model).
 
     Args:
         box: the metal's index box (slices); ``metal_fraction`` its partial-volume fraction there.
         towards: optional RAS point at which the first streak of each slice is aimed.
+        amplitude_hu: the streaks' HU per 10 mm of metal crossed (``STREAK_HU`` by default).
     """
     spacing = volume.spacing
     shape = volume.voxels.shape
@@ -292,7 +293,7 @@ def add_metal_streaks(volume, box, metal_fraction, towards=None, count=STREAK_CO
             first = np.array([1.0, 0.0])
         first_angle = np.arctan2(first[1], first[0])
         extent = np.ptp(cells @ np.array([np.cos(first_angle), np.sin(first_angle)])) + spacing[:2].mean()
-        amplitude = STREAK_HU * min(extent / 10.0, 3.0)
+        amplitude = amplitude_hu * min(extent / 10.0, 3.0)
         offset_i, offset_j = i - centre[0], j - centre[1]
         distance = np.maximum(np.hypot(offset_i, offset_j) - 0.5 * extent, 0.0)
         decay = 1.0 / (1.0 + distance / STREAK_DECAY_MM)

@@ -1,0 +1,586 @@
+"""Which object in the CT is the bone: by what bone is, not by its size (issue 27).
+
+A reference body can be larger and brighter than the piece of bone a C-arm CT holds, and joined to it by the
+bracket that fixes it (the paper inserts an extending bracket into the porcine ilium). So the bone is recognised:
+
+1. **Not the reference body.** Objects (connected components above the threshold) within a sphere's radius and
+   1 mm of a marker sphere's centre (``marker_spheres``: spheres are looked for in every object) hold the body.
+2. **Cut off a bracket.** An object that holds spheres may hold the bone too, joined by a bracket. With the
+   spheres' balls taken out, it is opened (morphologically) by balls of growing radius, the smallest first so
+   that as little bone as possible is lost: the first radius at which a part far from every sphere and
+   plausibly bone survives is just over the bracket's (the neck the opening cut). That part, and the thin bits
+   hanging off it that do not lead to a sphere, is the bone; the rest (bracket, frame, posts) is the body, and
+   IPC points within that radius and a cell of it are left out (the bracket's stub, the corner the blur fills).
+3. **Plausibly bone:** at least ``MIN_BONE_MM3`` (cavities filled), at least ``MIN_HALF_THICKNESS_MM`` from its
+   surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
+   cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
+   inside). The largest such object is the bone. If none has a cortex, the largest thick one without spheres is
+   taken, with a warning; if there is none at all, ``ValueError`` says what was found and what to do.
+
+Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised CT), which the cut's margin covers.
+"""
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .sphere_candidates import block_means
+
+logger = logging.getLogger(__name__)
+
+#: The grid the shapes are measured on (mm, about).
+CELL_MM = 1.0
+#: ... coarser for a large object, so that its grid has about this many cells at most.
+MAX_CELLS = 250_000
+#: Smallest bone (mm^3, cavities filled): a 16 mm piece of a thin shaft.
+MIN_BONE_MM3 = 1500.0
+#: A bone is at least twice this thick somewhere (mm).
+MIN_HALF_THICKNESS_MM = 2.0
+#: A cortex: the rim at least this much brighter (HU) than the inside.
+CORTEX_CONTRAST_HU = 150.0
+#: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
+MIN_CORE_MM3 = 100.0
+#: The cortex is looked for this deep (mm) under the object's surface at the threshold, which lies out in the blur
+#: beyond the cortex's peak when the threshold is low against the bone's surroundings (bone in soft tissue).
+RIM_MM = 2.5
+#: Opening radii (mm) tried to cut a bracket off the bone, smallest first.
+OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
+#: The bracket, as the bone's core grows it out of the bone kept so far, crosses the band ROD_FROM_MM to ROD_TO_MM
+#: from it.
+ROD_FROM_MM = 1.5
+ROD_TO_MM = 7.5
+#: At most this many objects (the largest) are looked at.
+MAX_OBJECTS = 12
+
+
+@dataclass(frozen=True)
+class ObjectVerdict:
+    """What one object was taken for: ``label``, its filled volume (mm^3), half its largest thickness (mm), its
+    cortex contrast (HU, None when it is too thin to tell), how many marker spheres it holds, and ``verdict``."""
+
+    label: int
+    volume_mm3: float
+    half_thickness_mm: float
+    cortex_hu: float
+    spheres: int
+    verdict: str
+
+    def to_dict(self):
+        return {
+            "label": self.label,
+            "volume_mm3": self.volume_mm3,
+            "thickness_mm": 2.0 * self.half_thickness_mm,
+            "cortex_hu": self.cortex_hu,
+            "reference_body_contacts": self.spheres,
+            "verdict": self.verdict,
+        }
+
+    def describe(self):
+        if self.cortex_hu is None:
+            cortex = "no inside to tell a cortex"
+        else:
+            cortex = f"rim {self.cortex_hu:+.0f} HU on its inside"
+        held = f", holds {self.spheres} marker sphere(s)" if self.spheres else ""
+        return f"{self.volume_mm3 / 1000.0:.1f} cm^3, {2 * self.half_thickness_mm:.0f} mm thick, {cortex}{held}"
+
+
+@dataclass(frozen=True)
+class BoneRecognition:
+    """The bone's ``label``; ``body``: booleans over the segmentation's box of the reference body's voxels in the
+    bone's object (None when the body is apart), with ``body_margin_mm``; ``objects``: an ObjectVerdict each;
+    ``warnings``."""
+
+    label: int
+    body: np.ndarray
+    body_margin_mm: float
+    objects: tuple
+    warnings: tuple = ()
+
+
+def recognise_bone(volume, segmentation, spheres):
+    """Recognise the bone among a segmentation's objects (see the module docstring).
+
+    Args:
+        volume: the CTVolume (its geometry).
+        segmentation: a BoneSegmentation from ``ct_segmentation.threshold_ct`` (labels and denoised image over
+            its box).
+        spheres: the marker spheres of the reference body (``MarkerSphere``; their ``centre`` and ``radius_mm``).
+
+    Raises:
+        ValueError: no object is plausibly bone; the message lists what was found.
+    """
+    plain = _body_seeds(volume, segmentation, spheres, dim_links=False)
+    if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain):
+        return _recognise(volume, segmentation, plain)  # no object the dim parts could reach but the body's own
+    try:
+        return _recognise(volume, segmentation, _body_seeds(volume, segmentation, spheres))
+    except ValueError:
+        # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
+        # with the spheres and their posts' feet alone.
+        return _recognise(volume, segmentation, plain)
+
+
+def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds):
+    """True when an object large enough to be bone and holding no seed lies within DIM_BODY_REACH_MM of the
+    spheres' box: only then can dim posts or a dim frame lead to it (``_dim_links``), which is worth the look."""
+    if not spheres:
+        return False
+    centres = volume.ras_to_ijk_points(np.array([sphere.centre for sphere in spheres])) - segmentation.origin
+    reach = (DIM_BODY_REACH_MM + MARKER_DIAMETER_MM) / volume.spacing
+    low, high = centres.min(axis=0) - reach, centres.max(axis=0) + reach
+    voxel_mm3 = float(np.prod(volume.spacing))
+    for label, region in enumerate(ndimage.find_objects(segmentation.labels), start=1):
+        if region is None or seeds.get(label) or label not in segmentation.object_labels:
+            continue
+        if np.prod([s.stop - s.start for s in region]) * voxel_mm3 < MIN_BONE_MM3:
+            continue
+        start, stop = np.array([s.start for s in region]), np.array([s.stop for s in region])
+        if (start <= high).all() and (stop >= low).all():
+            return True
+    return False
+
+
+def _recognise(volume, segmentation, held):
+    voxel_mm3 = float(np.prod(volume.spacing))
+    labels = segmentation.labels
+    sizes = np.bincount(labels.ravel(), minlength=int(labels.max()) + 1)
+    objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]
+    slices = ndimage.find_objects(labels)
+    verdicts, found = [], []
+    for label in objects:
+        if sizes[label] * voxel_mm3 < MIN_BONE_MM3 / 4.0:  # even filled it cannot be a bone
+            verdicts.append(ObjectVerdict(label, sizes[label] * voxel_mm3, 0.0, None, len(held[label]), "too small"))
+            continue
+        shape = _ObjectShape(volume, segmentation, label, slices[label - 1])
+        if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
+            verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
+        elif held[label]:
+            verdict, bone = shape.cut_off_body(held[label])
+        else:
+            verdict, bone = shape.verdict(0), None
+        verdicts.append(verdict)
+        if verdict.verdict.startswith("bone"):
+            found.append((verdict, bone, shape))
+    with_cortex = [entry for entry in found if entry[0].verdict == "bone"]
+    warnings = []
+    if not with_cortex:
+        if not found:
+            raise ValueError(_nothing_like_bone(verdicts, segmentation.threshold_hu))
+        warnings.append(
+            "no object in the CT has a cortex (a rim brighter than its inside); the bone is taken to be the "
+            "largest thick object without marker spheres: check the IPC"
+        )
+        with_cortex = found
+    verdict, cut, shape = max(with_cortex, key=lambda entry: entry[0].volume_mm3)
+    body, margin = (None, 0.0) if cut is None else (shape.body_in_box(cut), cut.margin_mm)
+    logger.info("bone: object %d (%s)", verdict.label, verdict.describe())
+    return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings))
+
+
+def _body_seeds(volume, segmentation, spheres, dim_links=True):
+    """{label: [(point (3,) RAS, reach mm)]}: where each object is the reference body's for sure.
+
+    An object within a sphere's radius and 1 mm of a sphere's centre holds it (a sphere above the threshold, or its
+    bright post); an object the spheres reach through dimmer parts of the body (``_dim_links``: posts or a frame
+    below the threshold) is the body where they meet it.
+    """
+    seeds = {label: [] for label in range(int(segmentation.labels.max()) + 1)}
+    for sphere in spheres:
+        reach = sphere.radius_mm + 1.0
+        local, ras = _labels_near(volume, segmentation, sphere.centre, reach)
+        if local is None:
+            continue
+        inside = np.linalg.norm(ras - sphere.centre, axis=-1) <= reach
+        for label in np.unique(local[inside]):
+            if label > 0:
+                seeds[int(label)].append((sphere.centre, reach))
+    links = _dim_links(volume, segmentation, spheres) if dim_links else []
+    for label, point in links + _post_feet(volume, segmentation, spheres):
+        seeds[label].append((point, 1.0))
+    return seeds
+
+
+def _labels_near(volume, segmentation, centre, reach):
+    """The segmentation's labels in a box reaching ``reach`` mm round an RAS point, with their voxels' RAS."""
+    box, ras = volume.voxels_within(centre - reach, centre + reach)
+    if box is None:
+        return None, None
+    origin = segmentation.origin
+    low = np.maximum(np.array([s.start for s in box]) - origin, 0)
+    high = np.minimum(np.array([s.stop for s in box]) - origin, segmentation.labels.shape)
+    if (high <= low).any():
+        return None, None
+    local = segmentation.labels[tuple(slice(a, b) for a, b in zip(low, high))]
+    start = low + origin - np.array([s.start for s in box])
+    return local, ras[tuple(slice(a, a + n) for a, n in zip(start, local.shape))]
+
+
+#: Posts and a frame below the threshold are brighter than this (HU); air is darker.
+DIM_BODY_HU = -650.0
+#: ... and they lie within this (mm) of the spheres' box, and are no larger than this (mm^3): a larger dim region
+#: reached from the spheres is soft tissue they touch, which says nothing.
+DIM_BODY_REACH_MM = 40.0
+DIM_BODY_MAX_MM3 = 150_000.0
+#: A sphere's own object no larger than this (mm^3) is a sphere on its post, whose end the dim parts start at.
+SPHERE_ON_POST_MM3 = 5_000.0
+#: Dim parts meet an object over at most this area (mm^2, counted in cells): a post's foot, a bracket's end.
+MAX_LINK_MM2 = 400.0
+#: The dim parts are followed on a grid of about this (mm): the brightest voxel of each cell, so a thin post stays.
+DIM_CELL_MM = 1.5
+
+
+def _dim_links(volume, segmentation, spheres):
+    """[(label, point (3,) RAS)]: objects above the threshold that the spheres reach through dimmer parts of the
+    reference body (posts or a frame between DIM_BODY_HU and the threshold, or plastic spheres): where they meet.
+
+    Followed on a grid of DIM_CELL_MM cells, each as bright as its brightest voxel; cells next to an object above
+    the threshold are left out, so that the blurred rim every bright object has in air (which is in the dim range
+    too) does not lead from one object to the next; the dim parts meet an object where they come within two cells
+    of it.
+    """
+    if not spheres:
+        return []
+    sizes_all = np.bincount(segmentation.labels.ravel())
+    voxel_mm3 = float(np.prod(volume.spacing))
+    own = [s.label for s in spheres if s.label > 0 and sizes_all[s.label] * voxel_mm3 <= SPHERE_ON_POST_MM3]
+    if not own and not any(_dim_next_to(volume, segmentation, sphere) for sphere in spheres):
+        return []  # nothing dim leaves any sphere: no dim post, no plastic sphere
+    centres = np.array([sphere.centre for sphere in spheres])
+    origin, shape = segmentation.origin, np.array(segmentation.labels.shape)
+    ijk = volume.ras_to_ijk_points(centres) - origin
+    block = np.maximum(1, np.rint(DIM_CELL_MM / volume.spacing)).astype(int)
+    reach = (DIM_BODY_REACH_MM + MARKER_DIAMETER_MM) / volume.spacing
+    low = np.maximum(np.floor(ijk.min(axis=0) - reach).astype(int), 0)
+    high = np.minimum(np.ceil(ijk.max(axis=0) + reach).astype(int) + 1, shape)
+    high = low + (high - low) // block * block
+    if (high <= low).any():
+        return []
+    box = tuple(slice(a, b) for a, b in zip(low, high))
+    brightest = _block_max(segmentation.smoothed[box], block)
+    bright = _block_max(segmentation.labels[box] > 0, block)
+    dim = (brightest >= DIM_BODY_HU) & ~ndimage.binary_dilation(bright, structure=np.ones((3, 3, 3), dtype=bool))
+    regions, _ = ndimage.label(dim)
+    # The dim parts that start at a sphere's surface: cells within 2.5 mm beyond it.
+    grid = np.stack(np.meshgrid(*[np.arange(n) for n in dim.shape], indexing="ij"), axis=-1)
+    cells_ras = volume.ijk_to_ras_points((grid * block + (block - 1) / 2.0 + low + origin).reshape(-1, 3))
+    start, posts = np.zeros(dim.size, dtype=bool), np.zeros(dim.size, dtype=bool)
+    for sphere in spheres:
+        distance = np.linalg.norm(cells_ras - sphere.centre, axis=1)
+        start |= distance <= sphere.radius_mm + 2.5
+        posts |= distance <= sphere.radius_mm + MAX_POST_MM
+    start, posts = start.reshape(dim.shape), posts.reshape(dim.shape)
+    # ... or at the end of a sphere's own bright object within a post's length of it (a bright post on a dim frame).
+    # (Only a small object: a sphere on its post. When the sphere's object is large, bone and body are one object
+    # already, and its cells would start the dim parts in the soft tissue round the bone.)
+    if own:
+        own_cells = _block_max(np.isin(segmentation.labels[box], own), block)
+        start |= ndimage.binary_dilation(own_cells, iterations=2) & posts
+    linked = np.unique(regions[start & dim])
+    sizes = np.bincount(regions.ravel())
+    cell_mm3 = float(np.prod(volume.spacing * block))
+    links = []
+    for region in linked[linked > 0]:
+        if sizes[region] * cell_mm3 > DIM_BODY_MAX_MM3:
+            continue
+        near = ndimage.binary_dilation(regions == region, iterations=2) & bright
+        contacts = []
+        for cell in np.argwhere(near):
+            voxels = tuple(slice(a, a + n) for a, n in zip(low + cell * block, block))
+            inside = np.argwhere(segmentation.labels[voxels] > 0)
+            label = int(segmentation.labels[voxels][tuple(inside[0])])
+            contacts.append((label, inside[0] + low + cell * block + origin))
+        for label in {label for label, _ in contacts}:
+            points = [point for other, point in contacts if other == label]
+            if len(points) * float(np.prod(volume.spacing[:2] * block[:2])) > MAX_LINK_MM2:
+                continue  # met over a wide area: soft tissue round a bone, not a post's foot or a bracket's end
+            links += [
+                (label, point) for point in volume.ijk_to_ras_points(np.array(points[:: max(1, len(points) // 20)]))
+            ]
+    return links
+
+
+#: A post is at most this long (mm from the sphere's surface to the frame).
+MAX_POST_MM = 30.0
+
+
+def _post_feet(volume, segmentation, spheres):
+    """[(label, foot (3,) RAS)]: the objects the spheres' posts stand on. An NDI tool's markers lie in a plane and
+    its posts stand square to it, so from each sphere the way along the plane's normal (either side) that stays
+    brighter than DIM_BODY_HU is its post, whatever its brightness (below, above or about the threshold), and the
+    first object on it other than the sphere's own and the specks of a post about the threshold is its frame."""
+    if len(spheres) < 3:
+        return []
+    centres = np.array([sphere.centre for sphere in spheres])
+    normal = np.linalg.svd(centres - centres.mean(axis=0))[2][2]
+    objects = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
+    objects[list(segmentation.object_labels)] = True
+    step = 0.5 * float(volume.spacing.min())
+    feet = []
+    for sphere in spheres:
+        own = _labels_at(volume, segmentation, sphere.centre[None])[0]
+        distances = np.arange(sphere.radius_mm + 0.5, sphere.radius_mm + MAX_POST_MM, step)
+        for side in (1.0, -1.0):
+            points = sphere.centre + side * distances[:, None] * normal
+            ijk = volume.ras_to_ijk_points(points) - segmentation.origin
+            values = ndimage.map_coordinates(segmentation.smoothed, ijk.T, order=1, mode="constant", cval=-1000.0)
+            labels = _labels_at(volume, segmentation, points)
+            air = np.flatnonzero(values < DIM_BODY_HU)
+            hit = np.flatnonzero(objects[labels] & (labels != own))
+            if len(hit) and (len(air) == 0 or hit[0] < air[0]):
+                feet.append((int(labels[hit[0]]), points[hit[0]]))
+    return feet
+
+
+def _dim_next_to(volume, segmentation, sphere):
+    """True when dim voxels (DIM_BODY_HU up to the threshold) lie 1 to 2.5 mm beyond a sphere's surface, clear of the
+    blurred rim of anything above the threshold: a dim post or frame leaves it (or the sphere itself is dim)."""
+    reach = sphere.radius_mm + 2.5
+    local, ras = _labels_near(volume, segmentation, sphere.centre, reach)
+    if local is None:
+        return False
+    box, _ = volume.voxels_within(sphere.centre - reach, sphere.centre + reach)
+    low = np.maximum(np.array([s.start for s in box]) - segmentation.origin, 0)
+    values = segmentation.smoothed[tuple(slice(a, a + n) for a, n in zip(low, local.shape))]
+    steps = int(np.ceil(DIM_CELL_MM / float(volume.spacing.min())))
+    clear = ~ndimage.binary_dilation(local > 0, iterations=steps) if (local > 0).any() else np.ones(local.shape, bool)
+    distance = np.linalg.norm(ras - sphere.centre, axis=-1)
+    shell = (distance >= sphere.radius_mm + 1.0) & (distance <= reach)
+    return bool((shell & clear & (values >= DIM_BODY_HU)).any())
+
+
+def _labels_at(volume, segmentation, points):
+    """(N,) the segmentation's labels at the voxels nearest RAS points (N, 3); 0 outside its box."""
+    index = np.rint(volume.ras_to_ijk_points(points)).astype(int) - segmentation.origin
+    inside = np.all((index >= 0) & (index < segmentation.labels.shape), axis=1)
+    labels = np.zeros(len(points), dtype=int)
+    labels[inside] = segmentation.labels[tuple(index[inside].T)]
+    return labels
+
+
+@dataclass(frozen=True)
+class _Cut:
+    """The bone's part of an object that also holds the body: ``bone`` cells on the object's grid, the radius."""
+
+    bone: np.ndarray
+    margin_mm: float
+
+
+class _ObjectShape:
+    """One object on a grid of about CELL_MM: filled mask, depth (mm from its surface), block mean and max HU."""
+
+    def __init__(self, volume, segmentation, label, region):
+        spacing = volume.spacing
+        extent_mm = np.array([s.stop - s.start for s in region]) * spacing
+        cell_mm = max(CELL_MM, float(np.prod(extent_mm) / MAX_CELLS) ** (1.0 / 3.0))
+        self.block = np.maximum(1, np.floor(cell_mm / spacing + 1e-6)).astype(int)
+        self.cell = spacing * self.block
+        self.label = label
+        self.segmentation = segmentation
+        self._ijk_to_ras = volume.ijk_to_ras
+        shape = np.array(segmentation.labels.shape)
+        pad = 2 * self.block
+        low = np.array([max(s.start - p, 0) for s, p in zip(region, pad)])
+        high = np.array([min(s.stop + p, n) for s, p, n in zip(region, pad, shape)])
+        high = low + (high - low) // self.block * self.block  # whole blocks
+        self.low, self.high = low, high
+        box = tuple(slice(a, b) for a, b in zip(low, high))
+        # A cell holds the object when any of its voxels does: a thin cortex stays closed round the marrow.
+        self.mask = _block_max(segmentation.labels[box] == label, self.block)
+        self.mean_hu = block_means(segmentation.smoothed[box], self.block)
+        self.max_hu = _block_max(segmentation.smoothed[box], self.block)
+        self.filled = _filled(self.mask)
+        self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
+        # Cells on the CT's sides: where the field of view cuts the object, its rim there is its inside.
+        first = segmentation.origin + low
+        cells = np.array(self.mask.shape)
+        self.at_edge = np.zeros(self.mask.shape, dtype=bool)
+        for axis in range(3):
+            index = first[axis] + np.arange(cells[axis]) * self.block[axis]
+            edge = (index <= self.block[axis]) | (index + 2 * self.block[axis] >= volume.voxels.shape[axis])
+            self.at_edge |= edge.reshape([-1 if a == axis else 1 for a in range(3)])
+
+    def verdict(self, spheres, filled=None, depth=None):
+        """ObjectVerdict of the object (or of a part: its ``filled`` cells and their ``depth``)."""
+        filled = self.filled if filled is None else filled
+        depth = self.depth if depth is None else depth
+        volume = float(filled.sum() * np.prod(self.cell))
+        half = float(depth.max()) if filled.any() else 0.0
+        cortex = self._cortex(filled, depth)
+        if spheres:
+            verdict = "reference body"
+        elif volume < MIN_BONE_MM3 or half < MIN_HALF_THICKNESS_MM:
+            verdict = "too small or thin"
+        elif cortex is not None and cortex >= CORTEX_CONTRAST_HU:
+            verdict = "bone"
+        else:
+            verdict = "bone without a cortex"
+        return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict)
+
+    def _cortex(self, filled, depth):
+        rim = filled & (depth <= max(self.cell.max(), RIM_MM))
+        if (rim & ~self.at_edge).any():
+            rim &= ~self.at_edge
+        inside = filled & (depth >= max(0.6 * float(depth.max()), self.cell.max() * 1.5))
+        if not rim.any() or not inside.any():
+            return None
+        return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
+
+    def cut_off_body(self, seeds):
+        """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``
+        ([(point, reach mm)]: its spheres, the feet of its posts), cut off where a rod leaves it (see the module
+        docstring), or the verdict 'reference body' when no bone is in it."""
+        centres = np.array([point for point, _ in seeds])
+        reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
+        cells = self._cell_centres_ras()
+        near_sphere = np.zeros(self.filled.shape, dtype=bool)
+        for centre, reach in seeds:
+            near_sphere |= np.linalg.norm(cells - centre, axis=-1) <= reach
+        rest = self.filled & ~near_sphere
+        depth = ndimage.distance_transform_edt(rest, sampling=self.cell)
+        # The bone's core: at the largest opening that leaves a part far from the body big enough to be a bone. A
+        # bracket fixed into a bone is thinner than the bone there, so this opening has cut it.
+        found = None
+        for opening in [r for r in OPENING_RADII_MM[::-1] if r <= depth.max()]:
+            cores, count = ndimage.label(depth >= opening)
+            sizes = np.bincount(cores.ravel(), minlength=count + 1)
+            sizes[0] = 0
+            for core in np.argsort(-sizes)[: min(3, count)]:
+                if sizes[core] * np.prod(self.cell) < MIN_CORE_MM3:
+                    break  # the opening of a core this small is no bone
+                part = cores == core
+                if _reaches(cells[part], centres, reaches + opening):
+                    continue
+                opened = rest & (ndimage.distance_transform_edt(~part, sampling=self.cell) <= opening)
+                if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3:
+                    found = (opening, part, opened, None)
+                    break
+            if found:
+                break
+        if found is None:
+            return self.verdict(len(seeds)), None
+        # Smaller openings keep more of the bone (its thinner parts), until its core reaches the body. A rod its
+        # core grows out of the bone kept so far is the bracket: it is set apart (with the opening's reach round
+        # it), and the descent goes on without it, so a thin bone the bracket is fixed into is kept too.
+        kept, core_kept, bone, _ = found
+        apart = np.zeros(rest.shape, dtype=bool)
+        margin = 0.0
+        for opening in [r for r in OPENING_RADII_MM[::-1] if r < kept]:
+            part = self._core_through(depth >= opening, core_kept, apart)
+            rods = self._rods(part, bone, rest & ~apart, near_sphere, opening)
+            if rods.any():
+                apart |= ndimage.distance_transform_edt(~rods, sampling=self.cell) <= opening + self.cell.max()
+                margin = max(margin, opening)
+                part = self._core_through(part, core_kept, apart)
+            if not part.any() or _reaches(cells[part], centres, reaches + opening):
+                break
+            kept, core_kept = opening, part
+            bone = rest & ~apart & (ndimage.distance_transform_edt(~part, sampling=self.cell) <= opening)
+        bone = self._with_thin_bits(bone, rest & ~apart, near_sphere | apart)
+        verdict = self.verdict(0, bone, ndimage.distance_transform_edt(bone, sampling=self.cell))
+        if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
+            return self.verdict(len(seeds)), None
+        logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
+        # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell
+        # or two more: IPC points that near the body's side are left out.
+        margin = max(margin, kept) + 2.0 * float(self.cell.max()) + 1.0
+        return verdict, _Cut(bone, margin)
+
+    @staticmethod
+    def _core_through(cores, core_kept, apart):
+        """The connected piece of ``cores`` (cells, outside ``apart``) that holds most of ``core_kept``."""
+        labels, _ = ndimage.label(cores & ~apart)
+        overlap = np.bincount(labels[core_kept], minlength=2)
+        overlap[0] = 0
+        return labels == overlap.argmax() if overlap.max() > 0 else np.zeros(cores.shape, dtype=bool)
+
+    def _rods(self, core, bone, rest, body, opening):
+        """The cells of ``core`` that leave ``bone`` (cells) as the bracket: pieces crossing the band ROD_FROM_MM to
+        ROD_TO_MM from the bone that lead through ``rest`` outside the bone to the ``body`` (cells by the spheres and
+        the posts' feet) and are solid (a thin shaft of the bone itself that the bracket is fixed into has its
+        marrow cavity)."""
+        away = ndimage.distance_transform_edt(~bone, sampling=self.cell)
+        pieces, count = ndimage.label(core & (away > ROD_FROM_MM) & (away <= ROD_TO_MM))
+        rods = np.zeros(core.shape, dtype=bool)
+        if count == 0:
+            return rods
+        outside_bone, _ = ndimage.label(rest & ~bone)
+        to_body = np.unique(outside_bone[ndimage.binary_dilation(body) & (outside_bone > 0)])
+        cavity = self.filled & ~self.mask & (away > ROD_FROM_MM)  # outside the bone kept (its own marrow is in it)
+        for piece in range(1, count + 1):
+            cells = pieces == piece
+            if away[cells].max() < ROD_TO_MM - self.cell.max():
+                continue
+            if not np.isin(outside_bone[cells], to_body).any():
+                continue
+            around = ndimage.distance_transform_edt(~cells, sampling=self.cell) <= opening + self.cell.max()
+            if (cavity & around).sum() < 2:
+                rods |= cells
+        return rods
+
+    def _with_thin_bits(self, opened, rest, near_sphere):
+        """The opened bone with the thin parts of ``rest`` that hang off it and do not lead to a sphere."""
+        thin, count = ndimage.label(rest & ~opened)
+        if count == 0:
+            return opened
+        touching_bone = np.unique(thin[ndimage.binary_dilation(opened) & (thin > 0)])
+        leading_to_body = np.unique(thin[ndimage.binary_dilation(near_sphere) & (thin > 0)])
+        keep = np.setdiff1d(touching_bone, leading_to_body)
+        return opened | np.isin(thin, keep)
+
+    def body_in_box(self, cut):
+        """Booleans over the segmentation's box: the object's voxels on the body's side of the cut (the cells of
+        the object not in the bone's part, and the half-empty cells along their surface)."""
+        body = ndimage.binary_dilation(self.filled & ~cut.bone) & ~cut.bone
+        cells = np.repeat(np.repeat(np.repeat(body, self.block[0], 0), self.block[1], 1), self.block[2], 2)
+        box = tuple(slice(a, b) for a, b in zip(self.low, self.high))
+        whole = np.zeros(self.segmentation.labels.shape, dtype=bool)
+        whole[box] = (self.segmentation.labels[box] == self.label) & cells
+        return whole
+
+    def _cell_centres_ras(self):
+        grid = np.stack(np.meshgrid(*[np.arange(n) for n in self.mask.shape], indexing="ij"), axis=-1)
+        ijk = self.segmentation.origin + self.low + (grid + 0.5) * self.block - 0.5
+        return self._volume_ijk_to_ras(ijk)
+
+    def _volume_ijk_to_ras(self, ijk):
+        matrix = self._ijk_to_ras
+        return ijk @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def _block_max(image, block):
+    shape = np.array(image.shape) // block
+    trimmed = image[: shape[0] * block[0], : shape[1] * block[1], : shape[2] * block[2]]
+    return trimmed.reshape(shape[0], block[0], shape[1], block[1], shape[2], block[2]).max(axis=(1, 3, 5))
+
+
+def _filled(mask):
+    """The mask with its cavities filled: the holes enclosed in a slice along any axis (or in 3-D)."""
+    filled = mask.copy()
+    for axis in range(3):
+        in_slice = np.zeros((3, 3, 3), dtype=bool)
+        in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
+        holes, _ = ndimage.label(~mask, structure=in_slice)  # every slice labelled apart, in one call
+        edge = [np.take(holes, side, axis=a) for a in range(3) if a != axis for side in (0, -1)]
+        filled |= (holes > 0) & ~np.isin(holes, np.unique(np.concatenate([e.ravel() for e in edge])))
+    return filled
+
+
+def _reaches(points, centres, distances):
+    """True when any of ``points`` (N, 3) lies within ``distances`` (K,) of any of ``centres`` (K, 3)."""
+    for centre, distance in zip(centres, distances):
+        if (np.linalg.norm(points - centre, axis=1) <= distance).any():
+            return True
+    return False
+
+
+def _nothing_like_bone(verdicts, threshold_hu):
+    found = "; ".join(f"object {i + 1}: {v.verdict} ({v.describe()})" for i, v in enumerate(verdicts)) or "nothing"
+    return (
+        f"no object in the CT's field of view is plausibly bone at the threshold of {threshold_hu:.0f} HU (found "
+        f"{found}); a bone is at least {MIN_BONE_MM3 / 1000:.1f} cm^3, {2 * MIN_HALF_THICKNESS_MM:.0f} mm thick and "
+        "holds no marker sphere: check that the bone is in the field of view and that the threshold is below its "
+        "cortex (--threshold auto)"
+    )

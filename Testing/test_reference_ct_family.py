@@ -1,0 +1,199 @@
+"""Issue 27: marker spheres on any reference body, and the IPC on the bone and nowhere else, over a family of random
+reference-body CTs (``simulation.reference_ct_family``: spheres from plastic to metal, posts, frames and brackets of
+any HU and thickness, joined to the bone or not, any orientation, 0.3-1 mm voxels, three partial-volume models,
+noise, blur, streaks, fields of view that cut spheres). Each CT is scored against its generator's truth."""
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.commands import main
+from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+from RAMSICPRegistrationLib.image.volume_io import CTVolume, save_nrrd
+from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
+from RAMSICPRegistrationLib.simulation.ct_painting import ReferenceBodyModel
+from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
+    SHAFT_RADIUS_MM,
+    SOFT_TISSUE_MM,
+    make_reference_body_phantom,
+)
+from RAMSICPRegistrationLib.simulation.reference_ct_family import (
+    make_family_ct,
+    score_image_side,
+)
+
+#: The first seeds of the family (not chosen).
+SEEDS = range(24)
+
+
+def run(volume, truth):
+    """(ImageSideResult or None, FamilyScore) of the image side on a family CT."""
+    try:
+        image = process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
+    except ValueError as error:
+        return None, score_image_side(volume, truth, None, str(error))
+    return image, score_image_side(volume, truth, image)
+
+
+@pytest.fixture(scope="module")
+def family():
+    """{seed: (truth, ImageSideResult or None, FamilyScore)} over SEEDS, made once."""
+    scored = {}
+    for seed in SEEDS:
+        volume, truth = make_family_ct(seed)
+        image, score = run(volume, truth)
+        scored[seed] = (truth, image, score)
+    return scored
+
+
+def test_no_usable_sphere_is_false_and_no_cut_sphere_is_usable(family):
+    """Issue 27: no false sphere among those marked usable; spheres cut by the field of view flagged."""
+    for seed, (truth, image, score) in family.items():
+        assert score.false == 0 and score.cut_usable == 0, seed
+        for sphere in image.spheres if image else ():
+            if sphere.number and truth.marker_states[sphere.number - 1] == "cut":
+                assert sphere.status == "partial" and "cut by the edge of the field of view" in sphere.note
+
+
+def test_visible_spheres_are_found_to_0_15_mm_with_their_numbers(family):
+    visible = sum(score.visible for _, _, score in family.values())
+    found = sum(score.found for _, _, score in family.values())
+    assert visible > 60 and found >= 0.97 * visible
+
+
+def test_the_ipc_is_the_bone_not_the_reference_body(family):
+    """Over the seeds: at least 97 % of the IPC within 0.5 mm of the true bone surface (issue 27's target is 99 %;
+    the benchmark gives the figure over 200 seeds), and on most CTs no IPC point on the body or its bracket."""
+    scores = [score for _, _, score in family.values()]
+    assert sum(bool(score.refused) for score in scores) <= 1
+    points = sum(score.ipc_points for score in scores)
+    assert sum(score.ipc_on_bone for score in scores) >= 0.97 * points
+    assert sum(score.ipc_on_body == 0 for score in scores) >= 0.75 * len(scores)
+    assert np.median([score.coverage for score in scores if not score.refused]) >= 0.9
+
+
+#: CTs of the family (quick profile) the 200-seed benchmark found the IPC wrong on, each for one reason, with the
+#: share of the IPC within 0.5 mm of the bone before the fix: the round field of view (reconstruction cylinder)
+#: opening the marrow (7: 93 %, 21: 55 %, 32: 54 %), a steel pin through the bone taken for its cortex and the
+#: surface level set too high (81: 0 %), cancellous bone between the surface level and the threshold wiped with the
+#: specks in it (57: 93 %), a plastic body with its spheres sunk into a plate taken for a bone without a cortex (107:
+#: the whole IPC on the body).
+HARD_SEEDS = (7, 21, 32, 57, 81, 107)
+
+
+@pytest.mark.parametrize("seed", HARD_SEEDS)
+def test_the_ipc_on_ct_that_defeated_it(seed):
+    volume, truth = make_family_ct(seed)
+    _, score = run(volume, truth)
+    assert not score.refused and score.coverage > 0.6
+    assert score.ipc_on_bone >= (0.96 if seed == 81 else 0.99) * score.ipc_points  # 81: its bracket's stub
+    assert score.ipc_on_body <= 0.04 * score.ipc_points
+
+
+def test_the_papers_set_up_a_bracket_joins_a_body_larger_and_brighter_than_the_piece_of_bone():
+    """The CT the old detector found 0 of 4 spheres in: spheres of 800 HU on posts and a frame of 1000 HU, bone at
+    1300 HU, a 6 mm bracket of 1000 HU inserted into a flat bone (the paper's ilium) of which the field of view holds
+    only a short piece, so that bone, bracket and body are one object above the threshold, larger than the bone."""
+    overrides = {
+        "bone": "flat",
+        "cortex_hu": 1300.0,
+        "sphere_hu": 800.0,
+        "post_hu": 1000.0,
+        "frame_hu": 1000.0,
+        "bracket": "inserted",
+        "bracket_hu": 1000.0,
+        "bracket_diameter_mm": 6.0,
+        "bone_reach_mm": 10.0,
+        "cut_markers": [],
+        "post_length_mm": 15.0,
+        "damaged": [],
+    }
+    volume, truth = make_family_ct(4, overrides=overrides)
+    image, score = run(volume, truth)
+    assert score.found == score.visible == 4 and score.false == 0
+    assert score.ipc_on_bone >= 0.99 * score.ipc_points and score.ipc_on_body == 0 and score.coverage > 0.9
+    segmentation = image.segmentation
+    joined = segmentation.labels == segmentation.bone_label
+    body = segmentation.body
+    assert body is not None and body.sum() > 0.2 * joined.sum()  # one object, a good part of it the body's
+    # The spheres are the body's part of the joined object (their voxels relabelled apart afterwards).
+    assert all(
+        body[tuple(np.rint(volume.ras_to_ijk_points(c[None])[0]).astype(int) - segmentation.origin)]
+        for c in truth.marker_centres
+    )
+
+
+def test_plastic_spheres_below_the_bone_threshold_are_found():
+    overrides = {"sphere_hu": 110.0, "post_hu": 110.0, "frame_hu": 110.0, "cut_markers": [], "damaged": []}
+    volume, truth = make_family_ct(7, overrides=overrides)
+    image, score = run(volume, truth)
+    assert score.visible >= 3 and score.found == score.visible and score.false == 0
+    assert all(sphere.label == 0 or sphere.status == "ok" for sphere in image.usable)
+
+
+def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
+    """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
+    volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
+    grid = np.argwhere(np.ones(volume.voxels.shape, dtype=bool))
+    ras = volume.ijk_to_ras_points(grid)
+    voxels = volume.voxels.copy()
+    shaft = np.hypot(ras[:, 0], ras[:, 1]) < SHAFT_RADIUS_MM + SOFT_TISSUE_MM + 2.0
+    voxels[tuple(grid[shaft].T)] = -1000
+    with pytest.raises(ValueError, match="no object in the CT's field of view is plausibly bone") as refusal:
+        process_ct(CTVolume(voxels, volume.ijk_to_ras), tool_markers=tool_marker_geometry())
+    assert "reference body" in str(refusal.value) and "holds" in str(refusal.value)
+    # The command line says it in one line and exits 2, writing no IPC.
+    save_nrrd(tmp_path / "ct.nrrd", CTVolume(voxels, volume.ijk_to_ras))
+    assert main(["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "no object in the CT's field of view is plausibly bone" in error and "\n" not in error
+    assert not (tmp_path / "ipc.vtp").exists()
+
+
+def test_overrides_force_one_choice_and_leave_the_others():
+    _, drawn = make_family_ct(11, render=False)
+    _, forced = make_family_ct(11, overrides={"sphere_hu": 2500.0}, render=False)
+    assert forced.settings["sphere_hu"] == 2500.0
+    assert {k: v for k, v in forced.settings.items() if k != "sphere_hu"} == {
+        k: v for k, v in drawn.settings.items() if k != "sphere_hu"
+    }
+    with pytest.raises(ValueError, match="overrides sphere_colour: no such choice"):
+        make_family_ct(11, overrides={"sphere_colour": "red"}, render=False)
+
+
+def test_the_truth_has_known_answers():
+    volume, truth = make_family_ct(2, overrides={"bone": "long", "cut_markers": [1], "cylinder": False}, render=False)
+    # A point 2 mm off the long bone's surface along its radius is 2 mm from it.
+    capsule = truth.bone
+    axis = (capsule.end - capsule.start) / np.linalg.norm(capsule.end - capsule.start)
+    side = np.cross(axis, [1.0, 0.0, 0.0])
+    side /= np.linalg.norm(side)
+    point = 0.5 * (capsule.start + capsule.end) + (capsule.radius + 2.0) * side
+    assert truth.bone_distance(point[None])[0] == pytest.approx(2.0, abs=1e-9)
+    # The field of view's corner voxel centre is on its edge; marker 1 was cut by a face of it.
+    assert truth.field_of_view.clearance(volume.ijk_to_ras_points(np.zeros((1, 3))))[0] == pytest.approx(0.0)
+    assert truth.marker_states[0] == "cut"
+    assert truth.field_of_view.clearance(truth.marker_centres[:1])[0] < truth.marker_radius_mm
+
+
+def test_the_family_spans_what_a_user_meets():
+    """The draws of the first 300 seeds (not rendered) cover issue 27's ranges."""
+    settings = [make_family_ct(seed, render=False)[1].settings for seed in range(300)]
+
+    def values(name):
+        return np.array([s[name] for s in settings])
+
+    sphere, post, frame = values("sphere_hu"), values("post_hu"), values("frame_hu")
+    assert sphere.min() < 130 and sphere.max() > 2500  # plastic to metal
+    assert (frame > sphere + 100).mean() > 0.2 and (frame < sphere - 100).mean() > 0.2  # brighter and dimmer
+    assert (post > sphere + 100).mean() > 0.2 and (post < sphere - 100).mean() > 0.2
+    assert set(values("bracket")) == {"inserted", "resting", "short", "none"}
+    assert set(values("frame")) == {"star", "ring", "plate"} and set(values("bone")) == {"long", "flat", "mesh"}
+    assert set(values("partial_volume")) == {"ramp", "supersample", "sharp"}
+    drawn = np.concatenate((values("in_plane_mm"), values("slice_mm")))
+    assert drawn.min() < 0.32 and drawn.max() > 0.98 and drawn.max() <= 1.0
+    fine = [make_family_ct(seed, "full", render=False)[1].settings["spacing_mm"] for seed in range(40)]
+    assert min(min(spacing) for spacing in fine) < 0.5  # the benchmark's CTs keep fine voxels
+    assert values("noise_hu").min() < 3 and values("noise_hu").max() > 60
+    assert values("turned").mean() > 0.3 and values("cylinder").mean() > 0.1
+    assert sum(len(s["cut_markers"]) for s in settings) > 60
+    assert (values("bone_reach_mm") < 20).mean() > 0.1  # a short piece of bone in view

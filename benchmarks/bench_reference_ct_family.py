@@ -1,0 +1,106 @@
+"""Issue 27's targets over the family of random reference-body CTs (``simulation.reference_ct_family``).
+
+For each seed a CT is drawn and rendered (the 'full' profile: up to 4 million voxels, spacing 0.3-1 mm), the image
+side runs on it with the drawn tool's geometry, and the result is scored against the generator's truth:
+
+* spheres: the wholly visible ones given usable with their marker's number within 0.15 mm (target >= 99 %), the
+  usable ones farther than that from their marker (false: target 0), the ones cut by the field of view given
+  usable (target 0); visible spheres in CTs with fewer than 3 of the tool's spheres in view cannot be numbered by
+  the tool's distances and are counted apart (unpairable);
+* IPC: the share of its points within 0.5 mm of the true bone surface (target >= 99 %), those on the reference
+  body or its bracket (target 0), and how much of the bone surface in view it covers; CTs refused.
+
+Rows by kind of CT (bone, bracket, partial-volume model) show where the misses are. Run:
+python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full]
+"""
+
+import argparse
+import os
+import sys
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
+from RAMSICPRegistrationLib.simulation.reference_ct_family import make_family_ct, score_image_side
+
+FIELDS = ("visible", "found", "false", "cut", "cut_usable", "ipc_points", "ipc_on_bone", "ipc_on_body", "unpairable")
+
+
+def run_seed(seed, profile):
+    volume, truth = make_family_ct(seed, profile)
+    start = time.perf_counter()
+    try:
+        image = process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
+        score = score_image_side(volume, truth, image)
+    except ValueError as error:
+        score = score_image_side(volume, truth, None, str(error))
+    return truth.settings, score, time.perf_counter() - start, volume.voxels.size
+
+
+def table_row(name, scores):
+    total = {field: sum(getattr(score, field) for score in scores) for field in FIELDS}
+    refused = sum(bool(score.refused) for score in scores)
+    coverage = np.mean([score.coverage for score in scores if not score.refused]) if len(scores) > refused else 0.0
+    clean = sum(score.ipc_on_bone >= 0.99 * score.ipc_points and not score.refused for score in scores)
+    return (
+        f"{name:<28} {len(scores):>5} {total['found']:>5}/{total['visible']:<5} "
+        f"{100 * total['found'] / max(total['visible'], 1):6.1f} {total['false']:>5} "
+        f"{total['cut_usable']:>3}/{total['cut']:<4} {100 * total['ipc_on_bone'] / max(total['ipc_points'], 1):7.2f} "
+        f"{total['ipc_on_body']:>8} {100 * clean / len(scores):6.1f} {100 * coverage:6.1f} {refused:>4} "
+        f"{total['unpairable']:>5}"
+    )
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=200)
+    parser.add_argument("--first", type=int, default=0)
+    parser.add_argument("--profile", default="full", choices=("quick", "full"))
+    arguments = parser.parse_args()
+    print(
+        f"{arguments.seeds} seeds from {arguments.first}, profile {arguments.profile}, "
+        f"load average {os.getloadavg()[0]:.1f} at the start"
+    )
+    groups = defaultdict(list)
+    seconds, voxels, misses = [], [], []
+    for seed in range(arguments.first, arguments.first + arguments.seeds):
+        settings, score, elapsed, size = run_seed(seed, arguments.profile)
+        print(f"seed {seed}: {score}", file=sys.stderr, flush=True)  # progress
+        seconds.append(elapsed)
+        voxels.append(size)
+        groups["all"].append(score)
+        groups[f"bone {settings['bone']}"].append(score)
+        groups[f"bracket {settings['bracket']}"].append(score)
+        groups[f"partial volume {settings['partial_volume']}"].append(score)
+        if (
+            score.found < score.visible
+            or score.false
+            or score.cut_usable
+            or score.refused
+            or (score.ipc_on_bone < 0.99 * score.ipc_points or score.ipc_on_body)
+        ):
+            misses.append((seed, score))
+    print(
+        f"\n{'CTs':<28} {'n':>5} {'found/visible':>11} {'%':>6} {'false':>5} {'cut used':>8} {'IPC %on':>7} "
+        f"{'on body':>8} {'%CT>=99':>6} {'cover%':>6} {'ref':>4} {'unpair':>5}"
+    )
+    for name in sorted(groups, key=lambda name: (name != "all", name)):
+        print(table_row(name, groups[name]))
+    print(
+        f"\nimage side: median {np.median(seconds):.2f} s, 90th percentile {np.percentile(seconds, 90):.2f} s per CT "
+        f"(median {np.median(voxels) / 1e6:.1f} million voxels)"
+    )
+    print("\nCTs short of a target (seed: found/visible, false, cut used, IPC on bone, on body, refused):")
+    for seed, score in misses:
+        share = score.ipc_on_bone / max(score.ipc_points, 1)
+        print(
+            f"  {seed:4d}: {score.found}/{score.visible}, {score.false}, {score.cut_usable}, {100 * share:.1f} %, "
+            f"{score.ipc_on_body}, {score.refused[:90]}"
+        )
+
+
+if __name__ == "__main__":
+    main()
