@@ -159,11 +159,18 @@ def test_guided_collection_touches_where_it_says_until_enough_and_keeps_its_prom
     truth_errors, predicted, bounds = map(np.array, (truth_errors, predicted, bounds))
     ratio = np.sqrt(np.mean(truth_errors**2)) / np.sqrt(np.mean(predicted**2))
     within = np.mean(truth_errors < bounds)
-    print(f"guided touches {counts}; true / predicted RMS error {ratio:.2f}; within the 95 % bound {within:.0%}")
-    # The prediction's calibration is benchmarks/calibrate_predicted_tre.py's to judge on hundreds of trials; with
-    # 8 patients stopped by a sequential rule (stop as soon as the bound falls below the limit) it measured 1.55 and
-    # 78 % here: the shell only has to keep within a factor of two of what the library promises.
-    assert 0.5 <= ratio <= 2.0 and within >= 0.6
+    print(
+        f"8 patients stopped at enough after guided touches {counts}: true / predicted RMS error at the targets "
+        f"{ratio:.2f}, within their 95 % bound {within:.0%}"
+    )
+    # What is measured: the shell's guided loop (hold-still touches, register, next touch, stop at enough) on 8
+    # patients, 32 targets. These 8 happen to be unlucky: 1.55 and 78 %, and already 1.35-1.44 at fixed counts of 5-15
+    # touches. benchmarks/guided_stopping_calibration.py runs the same loop on the core (it stops where this test
+    # does on these 8): over 120 patients, stopped at enough, 1.06 (bootstrap 95 % interval 0.96-1.18) and 96 %;
+    # fixed counts 1.00-1.03. Samples of 8 of those 120 patients span 0.74-1.64 (1st-99th percentile) with coverage
+    # of at least 78 % in 99 %: the bounds below, just outside those, fail about 2 % of calibrated samples.
+    assert 0.7 <= ratio <= 1.7, f"true / predicted RMS error {ratio:.2f} over 8 patients: beyond 0.74-1.64"
+    assert within >= 0.75, f"{within:.0%} of the targets within their 95 % bound over 8 patients: below 78 %"
 
 
 def test_guided_collection_leaves_out_a_touch_away_from_the_drawn_point(tibia_patient, reachable):
