@@ -6,7 +6,10 @@ mask of its example CT (Apache-2.0, by ``tools/make_ilium_mesh.py``); see ``data
 The NDI tool geometries live in ``io.ndi_tools``, where the image side can read them too.
 """
 
+from functools import lru_cache
 from pathlib import Path
+
+import numpy as np
 
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 
@@ -68,6 +71,9 @@ def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
     """
     from .virtual_patient import VirtualPatient
 
+    if mesh is None and not options:
+        patient, vertices, triangles = _default_patient(bone, int(seed))
+        return patient, vertices.copy(), triangles.copy()
     vertices, triangles = bone_mesh(bone) if mesh is None else mesh
     patient = VirtualPatient.from_mesh(
         vertices,
@@ -78,4 +84,27 @@ def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
         seed=seed,
         **options,
     )
+    return patient, vertices, triangles
+
+
+@lru_cache(maxsize=4)
+def _default_patient(bone, seed):
+    """``shipped_patient(bone, seed)`` made once per process: building a patient takes 1.5 s (its exposed surface),
+    and ``ramsicp web --demo`` needs the same one twice (the CT phantom and the simulated tracker's touches). The
+    patient is a frozen dataclass whose arrays are made read-only here, so that no caller can change another's."""
+    from .virtual_patient import VirtualPatient
+
+    vertices, triangles = bone_mesh(bone)
+    patient = VirtualPatient.from_mesh(
+        vertices,
+        triangles,
+        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
+        BONES[bone]["lateral"],
+        anatomy=BONES[bone]["anatomy"],
+        seed=seed,
+    )
+    for value in vars(patient).values():
+        for array in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(array, np.ndarray):
+                array.flags.writeable = False
     return patient, vertices, triangles
