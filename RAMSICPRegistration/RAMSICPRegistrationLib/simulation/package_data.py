@@ -87,11 +87,8 @@ def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
     return patient, vertices, triangles
 
 
-@lru_cache(maxsize=4)
-def _default_patient(bone, seed):
-    """``shipped_patient(bone, seed)`` made once per process: building a patient takes 1.5 s (its exposed surface),
-    and ``ramsicp web --demo`` needs the same one twice (the CT phantom and the simulated tracker's touches). The
-    patient is a frozen dataclass whose arrays are made read-only here, so that no caller can change another's."""
+def build_shipped_patient(bone, seed):
+    """``shipped_patient(bone, seed)`` built now, without the caches: (patient, vertices, triangles)."""
     from .virtual_patient import VirtualPatient
 
     vertices, triangles = bone_mesh(bone)
@@ -103,6 +100,20 @@ def _default_patient(bone, seed):
         anatomy=BONES[bone]["anatomy"],
         seed=seed,
     )
+    return patient, vertices, triangles
+
+
+@lru_cache(maxsize=4)
+def _default_patient(bone, seed):
+    """``shipped_patient(bone, seed)`` made once per process, and read from the user's cache when it was built
+    before (``patient_cache``): building a patient takes 1.2-1.5 s (its exposed surface), and ``ramsicp web
+    --demo`` needs the same one at every start, twice (the CT phantom and the simulated tracker's touches). The
+    patient is a frozen dataclass whose arrays are made read-only here, so that no caller can change another's."""
+    from .patient_cache import cached_shipped_patient
+
+    if bone not in BONES:
+        raise ValueError(f"bone {bone!r}: shipped bones are {', '.join(BONES)}")
+    patient, vertices, triangles, _ = cached_shipped_patient(bone, seed)
     for value in vars(patient).values():
         for array in value if isinstance(value, (tuple, list)) else (value,):
             if isinstance(array, np.ndarray):
