@@ -1,7 +1,7 @@
-"""The virtual-patient cache (``ramsicp web --demo`` and ``shipped_patient`` read the shipped bones' patients from
-it): the patient read back is the one built, bit for bit, with its mesh; a damaged or half-written file is built
-again; another bone, seed, tool, mesh file or simulation code is another key; a cache that cannot be written costs
-only time. A long bone and a flat bone, at two seeds."""
+"""The virtual-patient cache (``ramsicp web --demo`` reads the demo's patient from it, once per process): the
+patient read back is the one built, bit for bit, with its mesh; a damaged or half-written file is built again;
+another bone, seed, tool, mesh file or simulation code is another key; a cache that cannot be written costs only
+time. A long bone and a flat bone, at two seeds."""
 
 import dataclasses
 import logging
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from RAMSICPRegistrationLib.simulation import package_data, patient_cache
-from RAMSICPRegistrationLib.simulation.package_data import build_shipped_patient, shipped_patient
-from RAMSICPRegistrationLib.simulation.patient_cache import cached_shipped_patient, patient_key
+from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+from RAMSICPRegistrationLib.simulation.patient_cache import cached_shipped_patient, patient_key, shared_shipped_patient
 
 CASES = [("right-tibia", 0), ("right-ilium", 3)]
 
@@ -19,7 +19,7 @@ CASES = [("right-tibia", 0), ("right-ilium", 3)]
 @pytest.fixture(scope="module", params=CASES, ids=[f"{bone}-seed{seed}" for bone, seed in CASES])
 def built(request):
     bone, seed = request.param
-    return bone, seed, build_shipped_patient(bone, seed)
+    return bone, seed, shipped_patient(bone, seed)
 
 
 def assert_same_patient(read, made):
@@ -115,9 +115,9 @@ def test_the_key_changes_with_every_input(monkeypatch, tmp_path):
     assert patient_key("right-tibia", 0) != key
 
 
-def test_shipped_patient_is_made_once_per_process_and_cannot_be_changed(built):
+def test_the_shared_patient_is_made_once_per_process_and_cannot_be_changed(built):
     bone, seed, made = built
-    first, second = shipped_patient(bone, seed), shipped_patient(bone, seed)
+    first, second = shared_shipped_patient(bone, seed), shared_shipped_patient(bone, seed)
     assert first[0] is second[0]  # the same patient, not built twice
     assert_same_patient(first, made)
     with pytest.raises(ValueError, match="read-only"):
@@ -127,4 +127,4 @@ def test_shipped_patient_is_made_once_per_process_and_cannot_be_changed(built):
     first[1][0, 0] += 1.0  # the mesh is the caller's own copy
     assert second[1][0, 0] == made[1][0, 0]
     with pytest.raises(ValueError, match="bone 'no-bone'"):
-        shipped_patient("no-bone")
+        shared_shipped_patient("no-bone")

@@ -6,10 +6,7 @@ mask of its example CT (Apache-2.0, by ``tools/make_ilium_mesh.py``); see ``data
 The NDI tool geometries live in ``io.ndi_tools``, where the image side can read them too.
 """
 
-from functools import lru_cache
 from pathlib import Path
-
-import numpy as np
 
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
 
@@ -71,9 +68,6 @@ def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
     """
     from .virtual_patient import VirtualPatient
 
-    if mesh is None and not options:
-        patient, vertices, triangles = _default_patient(bone, int(seed))
-        return patient, vertices.copy(), triangles.copy()
     vertices, triangles = bone_mesh(bone) if mesh is None else mesh
     patient = VirtualPatient.from_mesh(
         vertices,
@@ -84,38 +78,4 @@ def shipped_patient(bone="right-tibia", seed=0, mesh=None, **options):
         seed=seed,
         **options,
     )
-    return patient, vertices, triangles
-
-
-def build_shipped_patient(bone, seed):
-    """``shipped_patient(bone, seed)`` built now, without the caches: (patient, vertices, triangles)."""
-    from .virtual_patient import VirtualPatient
-
-    vertices, triangles = bone_mesh(bone)
-    patient = VirtualPatient.from_mesh(
-        vertices,
-        triangles,
-        tool_marker_geometry(DEFAULT_REFERENCE_TOOL),
-        BONES[bone]["lateral"],
-        anatomy=BONES[bone]["anatomy"],
-        seed=seed,
-    )
-    return patient, vertices, triangles
-
-
-@lru_cache(maxsize=4)
-def _default_patient(bone, seed):
-    """``shipped_patient(bone, seed)`` made once per process, and read from the user's cache when it was built
-    before (``patient_cache``): building a patient takes 1.2-1.5 s (its exposed surface), and ``ramsicp web
-    --demo`` needs the same one at every start, twice (the CT phantom and the simulated tracker's touches). The
-    patient is a frozen dataclass whose arrays are made read-only here, so that no caller can change another's."""
-    from .patient_cache import cached_shipped_patient
-
-    if bone not in BONES:
-        raise ValueError(f"bone {bone!r}: shipped bones are {', '.join(BONES)}")
-    patient, vertices, triangles, _ = cached_shipped_patient(bone, seed)
-    for value in vars(patient).values():
-        for array in value if isinstance(value, (tuple, list)) else (value,):
-            if isinstance(array, np.ndarray):
-                array.flags.writeable = False
     return patient, vertices, triangles

@@ -8,12 +8,13 @@ package (how patients are drawn, and ``package_data.BONES``) and of ``io`` (how 
 are read), the bone's mesh file, the reference tool's marker geometry, the bone's name and the seed. The file holds
 the bone's mesh too (``shipped_patient`` returns it with the patient). A file is written whole or not at all
 (``io.atomic_files``); one that cannot be read, or holds arrays of the wrong shape, is built again and replaced.
-A cache that cannot be written costs only the time.
+A cache that cannot be written costs only the time. ``shared_shipped_patient`` reads or builds it once per process.
 """
 
 import hashlib
 import logging
 import zipfile
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ def _sources():
 
 def patient_key(bone, seed):
     """Hex SHA-256 of everything ``shipped_patient(bone, seed)`` depends on (see the module's docstring)."""
-    from .package_data import bone_mesh_path
+    from .package_data import bone_mesh_path  # a ValueError naming the shipped bones for another name
 
     digest = hashlib.sha256(f"ramsicp virtual patient v{PATIENT_VERSION} {bone} {int(seed)}".encode())
     for name, source in _sources():
@@ -54,7 +55,7 @@ def cached_shipped_patient(bone="right-tibia", seed=0, directory=None):
     Returns:
         (patient, vertices, triangles, built): ``built`` is True when the patient was built now.
     """
-    from .package_data import build_shipped_patient
+    from .package_data import shipped_patient
     from .phantom_cache import cache_directory
 
     directory = cache_directory() if directory is None else Path(directory)
@@ -62,7 +63,7 @@ def cached_shipped_patient(bone="right-tibia", seed=0, directory=None):
     stored = _read(path)
     if stored is not None:
         return (*stored, False)
-    patient, vertices, triangles = build_shipped_patient(bone, seed)
+    patient, vertices, triangles = shipped_patient(bone, seed)
     arrays = {name: value for name, value in vars(patient).items() if name != "sub_area_points"}
     arrays["exposed_points"] = np.zeros((0, 3)) if patient.exposed_points is None else patient.exposed_points
     arrays["has_exposed_points"] = patient.exposed_points is not None
@@ -75,6 +76,25 @@ def cached_shipped_patient(bone="right-tibia", seed=0, directory=None):
     except OSError as error:
         logger.warning("the virtual patient could not be cached in %s (%s); it will be built again", path, error)
     return patient, vertices, triangles, True
+
+
+@lru_cache(maxsize=4)
+def _shared(bone, seed):
+    patient, vertices, triangles, _ = cached_shipped_patient(bone, seed)
+    for value in vars(patient).values():
+        for array in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(array, np.ndarray):
+                array.flags.writeable = False
+    return patient, vertices, triangles
+
+
+def shared_shipped_patient(bone="right-tibia", seed=0):
+    """``cached_shipped_patient(bone, seed)`` made or read once per process: ``ramsicp web --demo`` needs the same
+    patient twice (the CT phantom, the simulated tracker's touches). Returns (patient, vertices, triangles); the
+    patient is shared, a frozen dataclass whose arrays are read-only, so that no caller can change another's; the
+    mesh is the caller's own copy."""
+    patient, vertices, triangles = _shared(str(bone), int(seed))
+    return patient, vertices.copy(), triangles.copy()
 
 
 def _read(path):
