@@ -178,9 +178,9 @@ def demo_simulator(
 
 def default_touch_points(seed=0):
     """The demo's 40 probe points on the right tibia, in reference coordinates (noise-free)."""
-    from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
+    from RAMSICPRegistrationLib.simulation.patient_cache import shared_shipped_patient
 
-    patient, _, _ = shipped_patient("right-tibia")
+    patient, _, _ = shared_shipped_patient("right-tibia")  # the patient of the demo's CT, made once per process
     return patient.simulate_trial(np.random.default_rng(seed), 0.0, probe_noise_mm=0.0).ppc
 
 

@@ -87,7 +87,12 @@ class NavigationLogic:
     Args:
         scene: the vtkMRMLScene (``slicer.mrmlScene`` inside Slicer).
         autosave_directory: every collected point list is written here at once (``<node name>.mrk.json``).
+
+    ``image_processor`` is what ``process_ct`` runs on the CT: ``image.ct_pipeline.process_ct``, or a function with
+    its signature and result (the browser demo sets ``image_side_cache.cached_image_side``).
     """
+
+    image_processor = staticmethod(process_ct)
 
     def __init__(self, scene, autosave_directory=None):
         self.scene = scene
@@ -123,7 +128,9 @@ class NavigationLogic:
             check_bone_threshold(threshold_hu)  # a fraction or a soft-tissue threshold, before any work
         volume = load_volume(volume_node)
         check_hounsfield_units(volume.voxels, threshold_hu)
-        image = process_ct(volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress)
+        image = self.image_processor(
+            volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress
+        )
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         parameters = self.parameters
         for old in (parameters.segmentation, parameters.ipcModel, parameters.markersImage):

@@ -12,6 +12,7 @@ import numpy as np
 from ..core.transforms import apply_transform, invert_transform, make_transform, probe_to_reference, rotation_about_axis
 from ..simulation.ct_phantom import make_ct_phantom
 from ..simulation.package_data import shipped_patient
+from ..simulation.patient_cache import shared_shipped_patient
 from ..simulation.phantom_cache import cached_ct_phantom
 from . import mrml_nodes
 from .controller import NavigationController
@@ -28,9 +29,10 @@ def make_patient_and_ct(bone="right-tibia", seed=0):
 
 
 def cached_patient_and_ct(bone="right-tibia", seed=0, directory=None):
-    """The virtual patient and the CT volume of ``make_patient_and_ct``, the volume read from the phantom cache
-    (``simulation.phantom_cache``) when it was built before: (patient, volume, built now)."""
-    patient, vertices, triangles = shipped_patient(bone, seed)
+    """The virtual patient and the CT volume of ``make_patient_and_ct``, the patient and the volume read from the
+    user's cache (``simulation.patient_cache``, ``simulation.phantom_cache``) when they were built before: (patient,
+    volume, phantom built now). The patient is shared within the process and read-only."""
+    patient, vertices, triangles = shared_shipped_patient(bone, seed)
     volume, built = cached_ct_phantom(patient, vertices, triangles, seed=seed, directory=directory)
     return patient, volume, built
 

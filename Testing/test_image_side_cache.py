@@ -1,0 +1,143 @@
+"""The processed-CT cache (``ramsicp web --demo`` reads its IPC, labels and marker spheres from it): what is read
+back is what ``process_ct`` gives, bit for bit (the denoised copy aside); a damaged or half-written file is made
+again; another CT, threshold, option, tool or image code is another key; a cache that cannot be written costs only
+time. CT phantoms of the shipped tibia at 1 mm voxels: a clean one, one with a steel pin (metal left out of the
+IPC), and one with a partial marker sphere (a flagged sphere and its warning)."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+from RAMSICPRegistrationLib.io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from RAMSICPRegistrationLib.navigation import image_side_cache
+from RAMSICPRegistrationLib.navigation.image_side_cache import cached_image_side, image_side_key
+from RAMSICPRegistrationLib.simulation.ct_phantom import make_ct_phantom
+from RAMSICPRegistrationLib.simulation.package_data import bone_mesh
+
+PHANTOMS = {
+    "clean": {},
+    "steel pin": {"metal": "pin"},
+    "partial marker": {"defects": {2: "partial"}},
+}
+TOOL = tool_marker_geometry(DEFAULT_REFERENCE_TOOL)
+
+
+@pytest.fixture(scope="module", params=sorted(PHANTOMS))
+def ct(request, tibia_patient):
+    options = {"spacing": (1.0, 1.0, 1.0), "below_cut_mm": 20.0, **PHANTOMS[request.param]}
+    volume = make_ct_phantom(tibia_patient, *bone_mesh("right-tibia"), seed=4, **options)[0]
+    return volume, process_ct(volume, tool_markers=TOOL)
+
+
+def assert_same_result(read, made):
+    np.testing.assert_array_equal(read.segmentation.labels, made.segmentation.labels)
+    assert read.segmentation.labels.dtype == made.segmentation.labels.dtype
+    assert read.segmentation.threshold_hu == made.segmentation.threshold_hu
+    assert read.segmentation.bone_label == made.segmentation.bone_label
+    assert read.segmentation.object_labels == made.segmentation.object_labels
+    assert read.segmentation.smoothed is None  # not kept (module docstring)
+    np.testing.assert_array_equal(read.surface.points, made.surface.points)
+    np.testing.assert_array_equal(read.surface.triangles, made.surface.triangles)
+    assert read.surface.left_out == made.surface.left_out
+    assert (read.surface.metal is None) == (made.surface.metal is None)
+    if made.surface.metal is not None:
+        for name in ("metal_mm3", "margin_mm", "reach_mm"):
+            assert getattr(read.surface.metal, name) == getattr(made.surface.metal, name)
+        for name in ("metal_ijk", "spacing"):
+            np.testing.assert_array_equal(getattr(read.surface.metal, name), getattr(made.surface.metal, name))
+        if made.surface.metal.centre is None:
+            assert read.surface.metal.centre is None
+        else:
+            np.testing.assert_array_equal(read.surface.metal.centre, made.surface.metal.centre)
+    assert len(read.spheres) == len(made.spheres)
+    for sphere_read, sphere_made in zip(read.spheres, made.spheres):
+        np.testing.assert_array_equal(sphere_read.centre, sphere_made.centre)
+        assert {**vars(sphere_read), "centre": None} == {**vars(sphere_made), "centre": None}
+    assert read.warnings == made.warnings
+
+
+def test_the_second_call_reads_what_the_first_processed(tmp_path, ct):
+    volume, direct = ct
+    made = cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
+    assert "cache_read" not in made.seconds
+    assert_same_result(made, direct)
+    (path,) = tmp_path.iterdir()  # one file, no temporary one beside it
+    assert path.name.startswith("image-side-") and path.suffix == ".npz"
+    read = cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
+    assert "cache_read" in read.seconds
+    assert_same_result(read, direct)
+
+
+def test_each_phantom_exercises_its_part_of_the_file(request, ct):
+    """The family covers the file's layout: metal found (points left out, a warning) or not, a sphere flagged."""
+    _, direct = ct
+    name = request.node.callspec.params["ct"]
+    statuses = [sphere.status for sphere in direct.spheres]
+    assert direct.surface.metal.found == (name == "steel pin")
+    assert (direct.surface.left_out > 0) == (name == "steel pin")
+    assert statuses == (["ok", "partial", "ok", "ok"] if name == "partial marker" else ["ok"] * 4)
+    assert bool(direct.warnings) == (name != "clean")
+
+
+@pytest.mark.parametrize("damage", ["truncated", "labels of another CT", "triangles out of range"])
+def test_a_damaged_cache_file_is_made_again_and_replaced(tmp_path, ct, caplog, damage):
+    volume, direct = ct
+    cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
+    (path,) = tmp_path.iterdir()
+    whole = path.read_bytes()
+    if damage == "truncated":  # a write cut short by a crash of an older version, a full disk
+        path.write_bytes(whole[: len(whole) // 2])
+    else:
+        with np.load(path) as stored:
+            arrays = dict(stored)
+        if damage == "labels of another CT":
+            arrays["label_shape"] = arrays["label_shape"] + 1
+        else:
+            arrays["surface_triangles"] = arrays["surface_triangles"] + len(arrays["surface_points"])
+        with open(path, "wb") as stream:
+            np.savez(stream, **arrays)
+    with caplog.at_level(logging.WARNING, logger=image_side_cache.__name__):
+        result = cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
+    assert "damaged" in caplog.text and "processing the CT again" in caplog.text
+    assert "cache_read" not in result.seconds
+    assert_same_result(result, direct)
+    assert path.read_bytes() == whole  # replaced by a whole copy
+
+
+def test_a_cache_that_cannot_be_written_still_gives_the_result(tmp_path, ct, caplog):
+    volume, direct = ct
+    blocked = tmp_path / "not-a-folder"
+    blocked.write_text("a file where the cache folder should be")
+    with caplog.at_level(logging.WARNING, logger=image_side_cache.__name__):
+        result = cached_image_side(volume, tool_markers=TOOL, directory=blocked)
+    assert "could not be cached" in caplog.text
+    assert_same_result(result, direct)
+
+
+def test_the_key_changes_with_every_input(monkeypatch, ct):
+    volume, _ = ct
+    key = image_side_key(volume, 200.0, True, TOOL)
+    assert image_side_key(volume, 200.0, True, TOOL.copy()) == key  # the same inputs: the same key
+    one_voxel = volume.voxels.copy()
+    one_voxel[tuple(np.array(one_voxel.shape) // 2)] += 1
+    assert image_side_key(type(volume)(one_voxel, volume.ijk_to_ras), 200.0, True, TOOL) != key
+    shifted = volume.ijk_to_ras.copy()
+    shifted[0, 3] += 0.5
+    assert image_side_key(type(volume)(volume.voxels, shifted), 200.0, True, TOOL) != key
+    assert image_side_key(volume, 250.0, True, TOOL) != key  # the threshold
+    assert image_side_key(volume, "auto", True, TOOL) != key
+    assert image_side_key(volume, 200.0, False, TOOL) != key  # fill_cavities
+    assert image_side_key(volume, 200.0, True, None) != key  # no tool
+    moved = TOOL.copy()
+    moved[0, 0] += 0.01
+    assert image_side_key(volume, 200.0, True, moved) != key
+    sources = image_side_cache._image_sources()
+    assert "ct_segmentation.py" in dict(sources)
+    changed = [(name, text + (b"\n# changed" if name == "ct_segmentation.py" else b"")) for name, text in sources]
+    monkeypatch.setattr(image_side_cache, "_image_sources", lambda: changed)
+    assert image_side_key(volume, 200.0, True, TOOL) != key  # the image code
+    monkeypatch.setattr(image_side_cache, "_image_sources", lambda: sources)
+    monkeypatch.setattr(image_side_cache, "IMAGE_SIDE_VERSION", image_side_cache.IMAGE_SIDE_VERSION + 1)
+    assert image_side_key(volume, 200.0, True, TOOL) != key
