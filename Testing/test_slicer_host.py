@@ -185,7 +185,8 @@ def test_the_tracker_process_ends_when_the_process_that_started_it_goes(tmp_path
     assert poll_until(lambda: None, lambda: "serving OpenIGTLink" in (tmp_path / "server.log").read_text())
     parent.kill()  # no clean-up at all: the parent simply vanishes
     parent.wait()
-    assert poll_until(lambda: None, lambda: not _alive(child), seconds=10.0)
+    # It notices at once (its stdin reader sees end-of-file); the margin is for a loaded machine starting Python.
+    assert poll_until(lambda: None, lambda: not _alive(child), seconds=30.0)
     assert "KeyboardInterrupt" not in (tmp_path / "server.log").read_text()  # it stopped as Ctrl-C stops it
 
 
