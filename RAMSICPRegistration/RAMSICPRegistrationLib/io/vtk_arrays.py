@@ -65,3 +65,26 @@ def triangle_arrays(mesh):
     vertices = vtk_to_numpy(mesh.GetPoints().GetData()).astype(np.float64)
     triangles = vtk_to_numpy(mesh.GetPolys().GetConnectivityArray()).reshape(-1, 3).astype(np.int64)
     return vertices, triangles
+
+
+def mesh_inside_grid(vertices_ijk, triangles, shape):
+    """(I, J, K) booleans: which voxel centres of a grid of ``shape`` lie inside a closed triangle mesh whose (M, 3)
+    vertices are given in that grid's index coordinates (voxel (0, 0, 0) at the origin), scan line by scan line
+    (VTK's ``vtkPolyDataToImageStencil``)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
+
+    shape = np.asarray(shape, dtype=int)
+    stencil = vtkPolyDataToImageStencil()
+    stencil.SetInputData(poly_data(vertices_ijk, triangles))
+    stencil.SetOutputOrigin(0.0, 0.0, 0.0)
+    stencil.SetOutputSpacing(1.0, 1.0, 1.0)
+    stencil.SetOutputWholeExtent(0, shape[0] - 1, 0, shape[1] - 1, 0, shape[2] - 1)
+    to_image = vtkImageStencilToImage()
+    to_image.SetInputConnection(stencil.GetOutputPort())
+    to_image.SetInsideValue(1)
+    to_image.SetOutsideValue(0)
+    to_image.SetOutputScalarTypeToUnsignedChar()
+    to_image.Update()
+    scalars = vtk_to_numpy(to_image.GetOutput().GetPointData().GetScalars())
+    return scalars.reshape(shape[::-1]).transpose(2, 1, 0).astype(bool)

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from ..image.volume_io import CTVolume
 from ..io.atomic_files import atomic_folder, write_json_atomic
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from ..io.vtk_arrays import poly_data, triangle_arrays
+from ..io.vtk_arrays import mesh_inside_grid, poly_data, triangle_arrays
 from .ct_painting import (
     LPS_DIRECTION,
     MATERIALS_HU,
@@ -336,9 +336,6 @@ def signed_distance_to_mesh(points, vertices, triangles, rng, samples=1_500_000)
 
 def _paint_bone(volume, vertices, triangles, top, anatomy, rng):
     """Bone with partial volume from exact signed distances near the surface, soft tissue around it."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
-
     spacing = volume.spacing
     ramp = float(np.mean(spacing))
     vertices_ijk = volume.ras_to_ijk_points(vertices)
@@ -349,19 +346,7 @@ def _paint_bone(volume, vertices, triangles, top, anatomy, rng):
     box_shape = high - low + 1
 
     # Inside/outside of the closed mesh on the grid, scan-line by scan-line (VTK stencil), in index space.
-    stencil = vtkPolyDataToImageStencil()
-    stencil.SetInputData(poly_data(vertices_ijk - low, triangles))
-    stencil.SetOutputOrigin(0.0, 0.0, 0.0)
-    stencil.SetOutputSpacing(1.0, 1.0, 1.0)
-    stencil.SetOutputWholeExtent(0, box_shape[0] - 1, 0, box_shape[1] - 1, 0, box_shape[2] - 1)
-    to_image = vtkImageStencilToImage()
-    to_image.SetInputConnection(stencil.GetOutputPort())
-    to_image.SetInsideValue(1)
-    to_image.SetOutsideValue(0)
-    to_image.SetOutputScalarTypeToUnsignedChar()
-    to_image.Update()
-    inside = vtk_to_numpy(to_image.GetOutput().GetPointData().GetScalars()).reshape(box_shape[::-1]).transpose(2, 1, 0)
-    inside = inside.astype(bool)
+    inside = mesh_inside_grid(vertices_ijk - low, triangles, box_shape)
 
     depth = ndimage.distance_transform_edt(inside, sampling=spacing)  # mm from the surface, inside
     outside_distance = ndimage.distance_transform_edt(~inside, sampling=spacing)

@@ -134,27 +134,12 @@ class MeshSolid:
 
     def inside_on_grid(self, volume, box):
         """(I, J, K) booleans over an index ``box`` (3 slices) of ``volume``: voxel centres inside the mesh."""
-        from vtkmodules.util.numpy_support import vtk_to_numpy
-        from vtkmodules.vtkImagingStencil import vtkImageStencilToImage, vtkPolyDataToImageStencil
-
-        from ..io.vtk_arrays import poly_data
+        from ..io.vtk_arrays import mesh_inside_grid
 
         vertices, triangles = mesh_in_ras(self.name, self.pose)
         low = np.array([s.start for s in box])
         shape = np.array([s.stop - s.start for s in box])
-        stencil = vtkPolyDataToImageStencil()
-        stencil.SetInputData(poly_data(volume.ras_to_ijk_points(vertices) - low, triangles))
-        stencil.SetOutputOrigin(0.0, 0.0, 0.0)
-        stencil.SetOutputSpacing(1.0, 1.0, 1.0)
-        stencil.SetOutputWholeExtent(0, shape[0] - 1, 0, shape[1] - 1, 0, shape[2] - 1)
-        to_image = vtkImageStencilToImage()
-        to_image.SetInputConnection(stencil.GetOutputPort())
-        to_image.SetInsideValue(1)
-        to_image.SetOutsideValue(0)
-        to_image.SetOutputScalarTypeToUnsignedChar()
-        to_image.Update()
-        scalars = vtk_to_numpy(to_image.GetOutput().GetPointData().GetScalars())
-        return scalars.reshape(shape[::-1]).transpose(2, 1, 0).astype(bool)
+        return mesh_inside_grid(volume.ras_to_ijk_points(vertices) - low, triangles, shape)
 
     def surface_samples(self):
         """(N, 3) RAS points and (N, 3) outward normals on the surface."""
