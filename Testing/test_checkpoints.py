@@ -210,3 +210,21 @@ def test_a_check_refuses_a_moving_tip_a_point_far_from_every_checkpoint_and_a_to
     assert controller.run("check_checkpoint") is None
     assert "too noisy to tell a move of 0.10 mm" in controller.status().message
     assert controller.status().checkpoint_alarm == ""
+
+
+def test_a_session_log_that_cannot_be_set_aside_stays_in_memory(tmp_path, monkeypatch):
+    """An unreadable log in a folder where it cannot be renamed must not stop the controller from starting."""
+    from pathlib import Path
+
+    from RAMSICPRegistrationLib.io.session_log import LOG_NAME, SessionLog
+
+    (tmp_path / LOG_NAME).write_text("{ not json", encoding="utf-8")
+
+    def refuse(self, target):
+        raise PermissionError("read-only folder")
+
+    monkeypatch.setattr(Path, "replace", refuse)
+    log = SessionLog(tmp_path)
+    assert log.path is None
+    assert log.record("checkpoint-stored", label="C1")["event"] == "checkpoint-stored"
+    assert (tmp_path / LOG_NAME).read_text(encoding="utf-8") == "{ not json"  # what was there is left untouched

@@ -305,3 +305,16 @@ def test_guided_collection_over_a_real_openigtlink_tracker_follows_the_suggestio
         bridge.close()
         server.stop()
         simulator.stop()
+
+
+def test_a_reachable_point_list_edited_in_place_changes_the_next_touchs_key():
+    """A markups node's MTime stays when a control point is moved: the suggestion is keyed by the points
+    themselves, so moving the only reachable point moves the next touch with it (review finding)."""
+    from RAMSICPRegistrationLib.navigation.controller import _node_state
+
+    scene = slicer.vtkMRMLScene()
+    node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", "Reachable")
+    node.AddControlPoint([1.0, 2.0, 3.0])
+    before = _node_state(node)
+    node.SetNthControlPointPosition(0, 4.0, 5.0, 6.0)
+    assert _node_state(node) != before

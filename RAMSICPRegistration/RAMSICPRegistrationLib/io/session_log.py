@@ -64,8 +64,13 @@ class SessionLog:
                 self.events = read_session_log(self.path)
             except ValueError as error:
                 kept = self.path.with_name(f"{LOG_NAME}.unreadable-{datetime.now():%Y%m%d-%H%M%S}")
-                self.path.replace(kept)
-                logger.warning("%s; kept as %s, a new log begins", error, kept)
+                try:
+                    self.path.replace(kept)
+                    logger.warning("%s; kept as %s, a new log begins", error, kept)
+                except OSError as move_error:  # a read-only folder must not stop navigation: the log stays in memory
+                    logger.error("%s; it cannot be set aside (%s): this session is logged in memory only", error,
+                                 move_error)  # fmt: skip
+                    self.path = None
 
     def record(self, event, **fields):
         """Add an event (its kind, e.g. 'checkpoint-checked', and JSON-ready fields) and write the log; returns the

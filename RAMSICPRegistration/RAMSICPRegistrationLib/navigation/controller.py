@@ -47,6 +47,7 @@ from ..io.atomic_files import write_json_atomic
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL
 from ..io.session_log import SessionLog
 from . import checkpoints, cutting, next_touch
+from .mrml_nodes import fiducial_positions
 from .navigation import NavigationLogic, matrix_of, points_of
 from .parameters import Parameters, get_parameter_node
 
@@ -388,6 +389,9 @@ class NavigationController:
             except (ValueError, TypeError, RuntimeError) as error:
                 self._hold_still = None
                 self._notify("hold-still", False)
+                if self._guided:  # guided collection runs through the hold-still detector: it stops with it
+                    self._guided = False
+                    self._notify("guided-collect", False)
                 self._say(f"hold-still collection stopped: {error}", is_error=True)
 
     def _say(self, message, is_error=False):
@@ -1400,9 +1404,12 @@ def _count(node):
 
 
 def _node_state(node):
-    """What identifies a node's data now (its ID and modification times), or None: a key of what was computed."""
+    """What identifies a node's data now (its ID and modification times; a markups node's points themselves, whose
+    edits leave its MTime alone), or None: a key of what was computed."""
     if node is None:
         return None
+    if node.IsA("vtkMRMLMarkupsNode"):
+        return (node.GetID(), fiducial_positions(node).tobytes())
     data = node.GetPolyData() if node.IsA("vtkMRMLModelNode") else None
     return (node.GetID(), node.GetMTime(), None if data is None else data.GetMTime())
 
