@@ -5,6 +5,7 @@ time. CT phantoms of the shipped tibia at 1 mm voxels: a clean one, one with a s
 IPC), and one with a partial marker sphere (a flagged sphere and its warning)."""
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -24,10 +25,15 @@ PHANTOMS = {
 TOOL = tool_marker_geometry(DEFAULT_REFERENCE_TOOL)
 
 
-@pytest.fixture(scope="module", params=sorted(PHANTOMS))
+@pytest.fixture(scope="module", params=[*sorted(PHANTOMS), "air around"])
 def ct(request, tibia_patient):
-    options = {"spacing": (1.0, 1.0, 1.0), "below_cut_mm": 20.0, **PHANTOMS[request.param]}
+    options = {"spacing": (1.0, 1.0, 1.0), "below_cut_mm": 20.0, **PHANTOMS.get(request.param, {})}
     volume = make_ct_phantom(tibia_patient, *bone_mesh("right-tibia"), seed=4, **options)[0]
+    if request.param == "air around":  # the segmentation then covers only the box holding something
+        voxels = np.pad(volume.voxels, 30, constant_values=-1000).astype(volume.voxels.dtype)
+        shift = np.eye(4)
+        shift[:3, 3] = -30.0
+        volume = replace(volume, voxels=voxels, ijk_to_ras=volume.ijk_to_ras @ shift)
     return volume, process_ct(volume, tool_markers=TOOL)
 
 
@@ -38,6 +44,14 @@ def assert_same_result(read, made):
     assert read.segmentation.bone_label == made.segmentation.bone_label
     assert read.segmentation.object_labels == made.segmentation.object_labels
     assert read.segmentation.smoothed is None  # not kept (module docstring)
+    assert read.segmentation.box == made.segmentation.box
+    assert read.segmentation.volume_shape == made.segmentation.volume_shape
+    assert read.segmentation.body_margin_mm == made.segmentation.body_margin_mm
+    assert (read.segmentation.body is None) == (made.segmentation.body is None)
+    if made.segmentation.body is not None:
+        np.testing.assert_array_equal(read.segmentation.body, made.segmentation.body)
+    np.testing.assert_array_equal(read.segmentation.labelmap(), made.segmentation.labelmap())
+    assert read.surface.left_out_body == made.surface.left_out_body
     np.testing.assert_array_equal(read.surface.points, made.surface.points)
     np.testing.assert_array_equal(read.surface.triangles, made.surface.triangles)
     assert read.surface.left_out == made.surface.left_out
@@ -78,7 +92,9 @@ def test_each_phantom_exercises_its_part_of_the_file(request, ct):
     assert direct.surface.metal.found == (name == "steel pin")
     assert (direct.surface.left_out > 0) == (name == "steel pin")
     assert statuses == (["ok", "partial", "ok", "ok"] if name == "partial marker" else ["ok"] * 4)
-    assert bool(direct.warnings) == (name != "clean")
+    assert bool(direct.warnings) == (name in ("steel pin", "partial marker"))
+    # With air around it the segmentation covers only the box holding something, not the whole CT.
+    assert (direct.segmentation.labels.shape != direct.segmentation.volume_shape) == (name == "air around")
 
 
 @pytest.mark.parametrize("damage", ["truncated", "labels of another CT", "triangles out of range"])

@@ -9,8 +9,11 @@ how a CT is processed processes it again), the CT's voxels, their type, shape an
 that cannot be read, or holds arrays that do not fit the CT, is made again and replaced. A cache that cannot be
 written (read-only home, full disk) costs only the time.
 
-What is read back is the result as the navigation steps use it: the segmentation's labels (stored as the voxels
-that are not background), the IPC, the spheres, the warnings. The segmentation's denoised copy of the CT
+What is read back is the result as the navigation steps use it: the segmentation's labels over the box of the CT
+that holds something (stored as the voxels that are not background), that box, the reference body's voxels in the
+bone's object, the IPC with what it left out, the spheres, the warnings. The reports of how the bone was recognised
+(``recognition``) and how the markers were paired (``pairing``) are not kept; a CT with a marker not found
+(``missing``) is not cached, so its report is always made whole. The segmentation's denoised copy of the CT
 (``smoothed``, float32, twice the CT's size) is only needed while processing and is not kept: it is None in every
 result of ``cached_image_side``, read or made.
 """
@@ -33,7 +36,7 @@ from ..io.atomic_files import atomic_path
 logger = logging.getLogger(__name__)
 
 #: Raise when the result's meaning or this file's layout changes without a change to the image package's source.
-IMAGE_SIDE_VERSION = 1
+IMAGE_SIDE_VERSION = 2
 _SPHERE_FIELDS = tuple(field.name for field in fields(MarkerSphere))
 _METAL_FIELDS = tuple(field.name for field in fields(MetalZone))
 
@@ -80,6 +83,8 @@ def cached_image_side(
         return replace(result, seconds={"cache_read": time.perf_counter() - clock})
     result = process_ct(volume, threshold_hu, fill_cavities, tool_markers, progress)
     result = replace(result, segmentation=replace(result.segmentation, smoothed=None))  # the same whether read or not
+    if result.missing:
+        return result  # where the missing marker is expected is reported from a whole processing, every time
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as temporary, open(temporary, "wb") as stream:
@@ -97,6 +102,14 @@ def _arrays(result):
     arrays = {
         "threshold_hu": np.float64(segmentation.threshold_hu),
         "label_shape": np.array(labels.shape, dtype=np.int64),
+        "box": np.array([[-1, -1]] * 3 if segmentation.box is None else [[b.start, b.stop] for b in segmentation.box]),
+        "volume_shape": np.array(segmentation.volume_shape or (-1, -1, -1), dtype=np.int64),
+        "body_index": np.flatnonzero(segmentation.body).astype(np.int64)
+        if segmentation.body is not None
+        else np.zeros(0, dtype=np.int64),
+        "has_body": np.bool_(segmentation.body is not None),
+        "body_margin_mm": np.float64(segmentation.body_margin_mm),
+        "surface_left_out_body": np.int64(surface.left_out_body),
         "label_dtype": np.array(labels.dtype.str),
         "label_index": where.astype(np.int64),
         "label_value": labels.ravel()[where],
@@ -131,16 +144,30 @@ def _read(path, shape):
 
 
 def _result(stored, shape):
-    if tuple(stored["label_shape"]) != tuple(shape):
-        raise ValueError(f"its labels are {tuple(stored['label_shape'])} voxels, the CT {tuple(shape)}")
-    labels = np.zeros(shape, dtype=np.dtype(str(stored["label_dtype"])))
+    bounds = stored["box"]
+    box = None if bounds[0][0] < 0 else tuple(slice(int(start), int(stop)) for start, stop in bounds)
+    label_shape = tuple(int(size) for size in stored["label_shape"])
+    expected = tuple(shape) if box is None else tuple(s.stop - s.start for s in box)
+    if label_shape != expected or (box is not None and tuple(stored["volume_shape"]) != tuple(shape)):
+        raise ValueError(f"its labels are {label_shape} voxels, the CT's box {expected}")
+    if box is not None and any(s.start < 0 or s.stop > size for s, size in zip(box, shape)):
+        raise ValueError("its box lies outside the CT")
+    labels = np.zeros(label_shape, dtype=np.dtype(str(stored["label_dtype"])))
     labels.ravel()[stored["label_index"]] = stored["label_value"]  # IndexError when the indices are out of range
+    body = None
+    if bool(stored["has_body"]):
+        body = np.zeros(label_shape, dtype=bool)
+        body.ravel()[stored["body_index"]] = True
     segmentation = BoneSegmentation(
         smoothed=None,
         threshold_hu=float(stored["threshold_hu"]),
         labels=labels,
         bone_label=int(stored["bone_label"]),
         object_labels=tuple(int(label) for label in stored["object_labels"]),
+        box=box,
+        volume_shape=None if box is None else tuple(shape),
+        body=body,
+        body_margin_mm=float(stored["body_margin_mm"]),
     )
     points, triangles = stored["surface_points"], stored["surface_triangles"]
     if points.ndim != 2 or points.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
@@ -154,7 +181,8 @@ def _result(stored, shape):
         values["reach_mm"] = float(values["reach_mm"])
         values["centre"] = None if values["centre"].ndim == 0 else values["centre"]
         metal = MetalZone(**values)
-    surface = BoneSurface(points, triangles, metal, int(stored["surface_left_out"]))
+    left_out, left_out_body = int(stored["surface_left_out"]), int(stored["surface_left_out_body"])
+    surface = BoneSurface(points, triangles, metal, left_out, left_out_body)
     columns = {name: stored[f"sphere_{name}"] for name in _SPHERE_FIELDS}
     spheres = tuple(
         MarkerSphere(**{name: _sphere_value(name, column[row]) for name, column in columns.items()})
