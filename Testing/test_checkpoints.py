@@ -112,6 +112,8 @@ def test_a_1_mm_slip_of_the_reference_body_raises_an_alarm_shown_logged_and_clea
     theatre.hold(divot)
     assert controller.run("store_checkpoint") == "C1"
     assert controller.status().checkpoint_count == 1 and "checkpoint C1 stored" in controller.status().message
+    theatre.hold(theatre.bone_point(4321))
+    assert controller.run("store_checkpoint") == "C2"  # a second one, never checked after the slip
     node = controller.parameters.checkpoints
     assert node.GetTransformNodeID() == controller.parameters.referenceToImage.GetID()  # drawn on the bone in the CT
     stored = np.array(node.GetNthControlPointPosition(0))
@@ -132,7 +134,12 @@ def test_a_1_mm_slip_of_the_reference_body_raises_an_alarm_shown_logged_and_clea
     assert node.GetNthControlPointLabel(0) == f"C1: {result.distance_mm:.2f} mm MOVED"
 
     events = read_session_log(tmp_path / LOG_NAME)  # the recorded session, read back as a later reader does
-    assert [event["event"] for event in events] == ["registered", "checkpoint-stored", "checkpoint-checked"]
+    assert [event["event"] for event in events] == [
+        "registered",
+        "checkpoint-stored",
+        "checkpoint-stored",
+        "checkpoint-checked",
+    ]
     checked = events[-1]
     assert checked["alarm"] is True and checked["label"] == "C1"
     assert checked["distance_mm"] == pytest.approx(result.distance_mm) and checked["limit_mm"] == CHECKPOINT_LIMIT_MM
@@ -147,10 +154,12 @@ def test_a_1_mm_slip_of_the_reference_body_raises_an_alarm_shown_logged_and_clea
     assert not theatre.register().alarms  # the markers' CR is 1 mm off the bone now: within what it allows
     status = controller.status()
     assert status.checkpoint_alarm == "" and status.checkpoint_count == 0 and status.tip_to_surface_mm is not None
-    assert "C1 dropped" in status.checkpoint_text
+    # C2 was stored before the slip too: it goes with C1, or checking it would raise the alarm again.
+    assert "C1, C2 dropped" in status.checkpoint_text
     kinds = [event["event"] for event in read_session_log(tmp_path)]
-    assert kinds[3:] == ["registered", "checkpoint-dropped", "registered"]
-    assert read_session_log(tmp_path)[3]["applied"] is True  # applied, but the alarm stood (stale points)
+    assert kinds[4:] == ["registered", "checkpoint-dropped", "registered"]
+    assert read_session_log(tmp_path)[5]["labels"] == ["C1", "C2"]
+    assert read_session_log(tmp_path)[4]["applied"] is True  # applied, but the alarm stood (stale points)
     theatre.hold(divot)
     assert controller.run("store_checkpoint") == "C1"
 

@@ -1069,18 +1069,21 @@ class NavigationController:
         dropped = list(self._checkpoint_alarms)
         self._checkpoint_alarms = {}
         if node is not None:
+            # Every checkpoint was stored where the reference body sat before it slipped, the ones not checked yet
+            # too: all of them are dropped, or the next check of one would raise the alarm again.
             _, labels = checkpoints.stored(node)
-            for label in dropped:
-                if label in labels:
-                    node.RemoveNthControlPoint(labels.index(label))
-                    labels.remove(label)
+            dropped = list(dict.fromkeys([*dropped, *labels]))
+            node.RemoveAllControlPoints()
             checkpoints.show_check(node, None, alarming=False)
             self.steps.autosave(node)
         for label in dropped:
             self._checkpoint_errors.pop(label, None)
-        self.session_log.record("checkpoint-dropped", labels=dropped, reason="moved; registered again")
+        self.session_log.record(
+            "checkpoint-dropped", labels=dropped, reason="the reference body moved; registered again"
+        )
         self._checkpoint_text = (
-            f"checkpoint {', '.join(dropped)} dropped after the new registration (it had moved): store it again"
+            f"checkpoint {', '.join(dropped)} dropped after the new registration (the reference body had moved): "
+            "store them again"
         )
 
     # -- 6. robot ------------------------------------------------------------------------------------------
