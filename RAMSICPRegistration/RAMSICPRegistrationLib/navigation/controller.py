@@ -858,9 +858,13 @@ class NavigationController:
         return True
 
     def _stop_guided(self, message=None, is_error=False):
-        """End guided collection and the hold-still collection under it; say ``message`` (after the last touch's)."""
+        """End guided collection and the hold-still collection under it; say ``message`` (after the last touch's). A
+        hold under way is dropped, not collected: it was meant as a guided touch, and unguided it would be taken
+        wherever it is."""
         self._guided = False
-        self.set_hold_still_collect(False)
+        if self._hold_still is not None:
+            self._hold_still = None
+            self._notify("hold-still", False)
         self._notify("guided-collect", False)
         if message:
             self._say(message, is_error=is_error)
