@@ -149,11 +149,11 @@ def test_the_key_changes_with_every_input(monkeypatch, ct):
     moved = TOOL.copy()
     moved[0, 0] += 0.01
     assert image_side_key(volume, 200.0, True, moved) != key
-    sources = image_side_cache._image_sources()
-    assert "ct_segmentation.py" in dict(sources)
-    changed = [(name, text + (b"\n# changed" if name == "ct_segmentation.py" else b"")) for name, text in sources]
-    monkeypatch.setattr(image_side_cache, "_image_sources", lambda: changed)
+    sources = image_side_cache.library_sources()
+    assert "image/ct_segmentation.py" in dict(sources)
+    changed = [(name, text + (b"\n# changed" if name == "image/ct_segmentation.py" else b"")) for name, text in sources]
+    monkeypatch.setattr(image_side_cache, "library_sources", lambda: changed)
     assert image_side_key(volume, 200.0, True, TOOL) != key  # the image code
-    monkeypatch.setattr(image_side_cache, "_image_sources", lambda: sources)
+    monkeypatch.setattr(image_side_cache, "library_sources", lambda: sources)
     monkeypatch.setattr(image_side_cache, "IMAGE_SIDE_VERSION", image_side_cache.IMAGE_SIDE_VERSION + 1)
     assert image_side_key(volume, 200.0, True, TOOL) != key

@@ -93,15 +93,15 @@ def test_the_key_changes_with_every_input(monkeypatch, tmp_path):
     assert patient_key("right-tibia", 0) == key
     assert patient_key("left-tibia", 0) != key
     assert patient_key("right-tibia", 1) != key
-    sources = patient_cache._sources()
+    sources = patient_cache.library_sources()
     names = dict(sources)
     assert "simulation/virtual_patient.py" in names and "io/surface_files.py" in names
     changed = [
         (name, text + (b"\n# changed" if name == "simulation/virtual_patient.py" else b"")) for name, text in sources
     ]
-    monkeypatch.setattr(patient_cache, "_sources", lambda: changed)
+    monkeypatch.setattr(patient_cache, "library_sources", lambda: changed)
     assert patient_key("right-tibia", 0) != key
-    monkeypatch.setattr(patient_cache, "_sources", lambda: sources)
+    monkeypatch.setattr(patient_cache, "library_sources", lambda: sources)
     moved_tool = patient_cache.tool_marker_geometry(patient_cache.DEFAULT_REFERENCE_TOOL) + 0.01
     monkeypatch.setattr(patient_cache, "tool_marker_geometry", lambda tool: moved_tool)
     assert patient_key("right-tibia", 0) != key

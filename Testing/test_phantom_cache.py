@@ -79,11 +79,11 @@ def test_the_cache_folder_is_the_environments_or_the_users(monkeypatch, tmp_path
 
 def test_a_change_to_the_generator_is_another_key(monkeypatch, tibia_patient, mesh):
     key = phantom_cache.phantom_key(tibia_patient, *mesh, 0, {})
-    sources = phantom_cache._generator_sources()
-    changed = [(name, source + (b"\n# changed" if name == "ct_phantom.py" else b"")) for name, source in sources]
-    monkeypatch.setattr(phantom_cache, "_generator_sources", lambda: changed)
+    sources = phantom_cache.library_sources()
+    changed = [(name, text + (b"\n# changed" if name == "simulation/ct_phantom.py" else b"")) for name, text in sources]
+    monkeypatch.setattr(phantom_cache, "library_sources", lambda: changed)
     assert phantom_cache.phantom_key(tibia_patient, *mesh, 0, {}) != key
-    monkeypatch.setattr(phantom_cache, "_generator_sources", lambda: sources)
+    monkeypatch.setattr(phantom_cache, "library_sources", lambda: sources)
     assert phantom_cache.phantom_key(tibia_patient, *mesh, 0, {"spacing": (2.0, 2.0, 2.5)}) != key  # an option
     assert phantom_cache.phantom_key(tibia_patient, *mesh, 1, {}) != key  # the seed
     monkeypatch.setattr(phantom_cache, "GENERATOR_VERSION", phantom_cache.GENERATOR_VERSION + 1)

@@ -32,6 +32,7 @@ from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU, BoneSegmentation, Bone
 from ..image.marker_spheres import MarkerSphere
 from ..image.metal import MetalZone
 from ..io.atomic_files import atomic_path
+from ..simulation.phantom_cache import library_sources
 
 logger = logging.getLogger(__name__)
 
@@ -41,16 +42,10 @@ _SPHERE_FIELDS = tuple(field.name for field in fields(MarkerSphere))
 _METAL_FIELDS = tuple(field.name for field in fields(MetalZone))
 
 
-def _image_sources():
-    """The image package's Python sources, sorted by name: what processes a CT."""
-    folder = Path(__file__).resolve().parent.parent / "image"
-    return [(path.name, path.read_bytes()) for path in sorted(folder.glob("*.py"))]
-
-
 def image_side_key(volume, threshold_hu, fill_cavities, tool_markers):
     """Hex SHA-256 of everything ``process_ct(volume, ...)`` depends on (see the module's docstring)."""
     digest = hashlib.sha256(f"ramsicp image side v{IMAGE_SIDE_VERSION}".encode())
-    for name, source in _image_sources():
+    for name, source in library_sources():
         digest.update(name.encode())
         digest.update(source)
     markers = None if tool_markers is None else np.asarray(tool_markers, dtype=np.float64)

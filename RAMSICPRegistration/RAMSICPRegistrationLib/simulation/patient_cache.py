@@ -21,6 +21,7 @@ import numpy as np
 
 from ..io.atomic_files import atomic_path
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from .phantom_cache import library_sources
 
 logger = logging.getLogger(__name__)
 
@@ -28,19 +29,12 @@ logger = logging.getLogger(__name__)
 PATIENT_VERSION = 1
 
 
-def _sources():
-    """The simulation and io packages' Python sources, sorted by folder and name."""
-    root = Path(__file__).resolve().parent.parent
-    paths = sorted((root / "simulation").glob("*.py")) + sorted((root / "io").glob("*.py"))
-    return [(f"{path.parent.name}/{path.name}", path.read_bytes()) for path in paths]
-
-
 def patient_key(bone, seed):
     """Hex SHA-256 of everything ``shipped_patient(bone, seed)`` depends on (see the module's docstring)."""
     from .package_data import bone_mesh_path  # a ValueError naming the shipped bones for another name
 
     digest = hashlib.sha256(f"ramsicp virtual patient v{PATIENT_VERSION} {bone} {int(seed)}".encode())
-    for name, source in _sources():
+    for name, source in library_sources():
         digest.update(name.encode())
         digest.update(source)
     digest.update(bone_mesh_path(bone).read_bytes())

@@ -45,19 +45,33 @@ def cache_directory():
     return base / APPLICATION
 
 
-def _generator_sources():
-    """The simulation package's Python sources, sorted by name: what draws a phantom."""
-    folder = Path(__file__).resolve().parent
-    return [(path.name, path.read_bytes()) for path in sorted(folder.glob("*.py"))]
+#: The library's packages whose code can change what is cached: the registration core (marker pairing, geometry),
+#: the files and tool geometries, the image side and the simulation.
+CACHED_PACKAGES = ("core", "io", "image", "simulation")
+
+
+def library_sources():
+    """(name, bytes) of the Python sources of ``CACHED_PACKAGES``, sorted by folder and name: any change to them
+    makes every cached phantom, patient and processed CT again."""
+    root = Path(__file__).resolve().parent.parent
+    paths = [path for package in CACHED_PACKAGES for path in sorted((root / package).glob("*.py"))]
+    return [(f"{path.parent.name}/{path.name}", path.read_bytes()) for path in paths]
 
 
 def phantom_key(patient, vertices, triangles, seed, options):
     """Hex SHA-256 of everything a phantom depends on (see the module's docstring)."""
     digest = hashlib.sha256(f"ramsicp ct phantom v{GENERATOR_VERSION}".encode())
-    for name, source in _generator_sources():
+    for name, source in library_sources():
         digest.update(name.encode())
         digest.update(source)
-    for array in (vertices, triangles, patient.reference_to_image, patient.markers_reference):
+    arrays = [vertices, triangles]
+    for name, value in sorted(vars(patient).items()):  # every field the phantom may read (anatomy, cut height, IPC)
+        digest.update(name.encode())
+        if isinstance(value, np.ndarray):
+            arrays.append(value)
+        else:
+            digest.update(repr(value).encode())
+    for array in arrays:
         array = np.ascontiguousarray(array)
         digest.update(f"{array.dtype.str}{array.shape}".encode())
         digest.update(array.tobytes())
