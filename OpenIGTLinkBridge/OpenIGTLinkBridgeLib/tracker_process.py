@@ -21,6 +21,7 @@ tracker.
 
 import logging
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -152,7 +153,10 @@ def _stop_when_the_parent_goes():
                 pass
         except OSError:
             pass
-        _thread.interrupt_main()
+        if os.name == "posix":  # a real SIGINT: it also wakes a main thread blocked in a system call
+            os.kill(os.getpid(), signal.SIGINT)
+        else:  # sets the flag the main thread checks between bytecodes (no signal to send to oneself on Windows)
+            _thread.interrupt_main()
 
     threading.Thread(target=watch, name="parent watch", daemon=True).start()
 
