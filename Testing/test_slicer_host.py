@@ -174,7 +174,8 @@ def test_the_tracker_process_ends_when_the_process_that_started_it_goes(tmp_path
     """Slicer crashing must not leave a server holding the port and the tracker: the child watches its standard
     input, which closes when its parent is gone."""
     script = (
-        "import sys, time\n"
+        "import signal, sys, time\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"  # a parent ignoring Ctrl-C passes that on through exec
         "from OpenIGTLinkBridgeLib.tracker_process import TrackerProcess\n"
         "process = TrackerProcess(sys.executable, ['--simulate', '--port', '0'], sys.argv[1]).start()\n"
         "print(process.process.pid, flush=True)\n"

@@ -165,6 +165,9 @@ def _main(argv=None):
     """``python -m OpenIGTLinkBridgeLib.tracker_process <ramsicp-tracker-server arguments>``."""
     from . import tracker_server
 
+    # A parent that ignores SIGINT (an application, a test runner) passes that on through exec, and Python then
+    # leaves Ctrl-C ignored: this process must stop on it, as the parent watch and the Stop button rely on.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     _stop_when_the_parent_goes()
     return tracker_server.main(argv)
 
