@@ -52,6 +52,15 @@ OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
 #: from it.
 ROD_FROM_MM = 1.5
 ROD_TO_MM = 7.5
+#: Cells darker than this (HU) at their brightest are a round field of view's padding (-1024 HU or lower), not air.
+PADDING_HU = -1010.0
+#: A part whose rim is less than this brighter (HU) than its inside is solid (a frame, a bracket), not bone.
+SOLID_CONTRAST_HU = 75.0
+#: ... told only with voxels this fine (mm) or finer.
+SOLID_MAX_VOXEL_MM = 1.0
+#: The largest cores an opening leaves that are weighed, and the cells of a solid one that seed the body.
+MAX_CORES = 4
+SOLID_SEEDS = 40
 #: At most this many objects (the largest) are looked at.
 MAX_OBJECTS = 12
 
@@ -170,6 +179,9 @@ def _recognise(volume, segmentation, held, census):
             verdict, bone = shape.cut_off_body(held[label])
         else:
             verdict, bone = shape.verdict(0), None
+            solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
+            if solid:  # a body whose spheres are out of view or sunk into its frame, joined to the bone
+                verdict, bone = shape.cut_off_body(solid)
         verdicts.append(verdict)
         if verdict.verdict.startswith("bone"):
             found.append((verdict, bone, shape))
@@ -385,6 +397,7 @@ class _ObjectShape:
         cell_mm = max(CELL_MM, float(np.prod(extent_mm) / MAX_CELLS) ** (1.0 / 3.0))
         self.block = np.maximum(1, np.floor(cell_mm / spacing + 1e-6)).astype(int)
         self.cell = spacing * self.block
+        self.spacing = spacing
         self.label = label
         self.segmentation = segmentation
         self._ijk_to_ras = volume.ijk_to_ras
@@ -399,16 +412,20 @@ class _ObjectShape:
         self.mask = _block_max(segmentation.labels[box] == label, self.block)
         self.mean_hu = block_means(segmentation.smoothed[box], self.block)
         self.max_hu = _block_max(segmentation.smoothed[box], self.block)
-        self.filled = _filled(self.mask)
-        self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
         # Cells on the CT's sides: where the field of view cuts the object, its rim there is its inside.
         first = segmentation.origin + low
         cells = np.array(self.mask.shape)
         self.at_edge = np.zeros(self.mask.shape, dtype=bool)
+        open_sides = []  # the sides of the grid's box that are not on the CT's (the object ends inside the box)
         for axis in range(3):
             index = first[axis] + np.arange(cells[axis]) * self.block[axis]
             edge = (index <= self.block[axis]) | (index + 2 * self.block[axis] >= volume.voxels.shape[axis])
             self.at_edge |= edge.reshape([-1 if a == axis else 1 for a in range(3)])
+            open_sides += [(axis, side) for side, on_edge in ((0, edge[0]), (-1, edge[-1])) if not on_edge]
+        # A round field of view's padding (a value below any air's, in whole cells) is the CT's side too.
+        padding = self.max_hu < PADDING_HU
+        self.filled = _filled(self.mask, open_sides, padding)
+        self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
 
     def verdict(self, spheres, filled=None, depth=None):
         """ObjectVerdict of the object (or of a part: its ``filled`` cells and their ``depth``)."""
@@ -436,6 +453,51 @@ class _ObjectShape:
             return None
         return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
 
+    def solid_parts(self):
+        """[(point (3,) RAS, reach mm)]: where the object is a solid part (a frame, a bracket: no cortex) joined to a
+        part with a cortex, [] when it is not: the body's seeds when no marker sphere says where it is (its spheres
+        out of the field of view or sunk into its frame).
+
+        Opened by balls of shrinking radius, the object falls apart at its necks; the first opening that leaves at
+        least two cores of MIN_CORE_MM3, one of them (opened back) with a cortex and another with a rim no brighter
+        than its inside (by less than SOLID_CONTRAST_HU), names the solid ones, by some of their cells. Voxels
+        coarser than SOLID_MAX_VOXEL_MM blur a cortex into the bone's inside: no part is told solid in them.
+        """
+        cell_mm3 = float(np.prod(self.cell))
+        if self.filled.sum() * cell_mm3 < 2.0 * MIN_BONE_MM3 or self.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
+            return []
+        for opening in [r for r in OPENING_RADII_MM[::-1] if r <= self.depth.max()]:
+            cores, count = ndimage.label(self.depth >= opening)
+            if count < 2:
+                continue
+            sizes = np.bincount(cores.ravel(), minlength=count + 1)
+            sizes[0] = 0
+            big = [core for core in np.argsort(-sizes)[:MAX_CORES] if sizes[core] * cell_mm3 >= MIN_CORE_MM3]
+            if len(big) < 2:
+                continue
+            contrasts = []
+            for core in big:
+                part = self.filled & self._within(cores == core, opening)
+                contrasts.append(self._cortex(part, ndimage.distance_transform_edt(part, sampling=self.cell)))
+            solid = [core for core, c in zip(big, contrasts) if c is not None and c < SOLID_CONTRAST_HU]
+            if not solid or not any(c is not None and c >= CORTEX_CONTRAST_HU for c in contrasts):
+                continue
+            cells = self._cell_centres_ras()
+            seeds = []
+            for core in solid:
+                points = cells[cores == core]
+                seeds += [(point, opening) for point in points[:: max(1, len(points) // SOLID_SEEDS)]]
+            logger.info(
+                "%d solid part(s) without a cortex joined to the bone: taken for the reference body", len(solid)
+            )
+            return seeds
+        return []
+
+    def _solid(self, cells):
+        """True when ``cells`` have a rim no brighter than their inside (by less than SOLID_CONTRAST_HU)."""
+        contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
+        return contrast is not None and contrast < SOLID_CONTRAST_HU
+
     def cut_off_body(self, seeds):
         """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``
         ([(point, reach mm)]: its spheres, the feet of its posts), cut off where a rod leaves it (see the module
@@ -462,7 +524,9 @@ class _ObjectShape:
                 if _reaches(cells[part], centres, reaches + opening):
                     continue
                 opened = rest & self._within(part, opening)
-                if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3:
+                # A thin bone's core, opened back, holds little of it (the smaller openings grow it): a quarter of
+                # the smallest bone will do, unless the part is solid (a frame's far corner, not bone).
+                if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3 / 4.0 and not self._solid(opened):
                     found = (opening, part, opened, None)
                     break
             if found:
@@ -588,8 +652,11 @@ def _block_max(image, block):
     return np.array(reduced) if (np.asarray(block) == 1).all() else reduced
 
 
-def _filled(mask):
-    """The mask with its cavities filled: the holes enclosed in a slice along any axis (or in 3-D)."""
+def _filled(mask, open_sides=(), padding=None):
+    """The mask with its cavities filled: the holes enclosed in a slice along any axis, and the holes in 3-D that
+    reach none of ``open_sides`` ([(axis, 0 or -1)]: the box's sides off the CT's edge) other than through
+    ``padding`` (cells outside a round field of view): where the field of view cuts a bone, its marrow reaches the
+    CT's side, enclosed in no slice when the bone lies oblique to the grid, but it is the bone's inside."""
     filled = mask.copy()
     for axis in range(3):
         in_slice = np.zeros((3, 3, 3), dtype=bool)
@@ -597,6 +664,10 @@ def _filled(mask):
         holes, _ = ndimage.label(~mask, structure=in_slice)  # every slice labelled apart, in one call
         edge = [np.take(holes, side, axis=a) for a in range(3) if a != axis for side in (0, -1)]
         filled |= (holes > 0) & ~np.isin(holes, np.unique(np.concatenate([e.ravel() for e in edge])))
+    if open_sides and len(open_sides) < 6:
+        holes, _ = ndimage.label(~filled if padding is None else ~filled & ~padding)
+        outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
+        filled |= (holes > 0) & ~np.isin(holes, outside)
     return filled
 
 

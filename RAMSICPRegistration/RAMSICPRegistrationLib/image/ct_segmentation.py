@@ -274,6 +274,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     weighed = [verdict.label for verdict in verdicts if verdict.verdict != "too small"]
     objects[[label for label in weighed if label != segmentation.bone_label]] = True
     other = objects[segmentation.labels[box]] & ~mask
+    if segmentation.body is not None:  # the reference body's part of the bone's object: its bracket, cut off
+        other |= segmentation.body[box]
     raw_box = tuple(slice(b.start + a, b.start + c) for b, a, c in zip(segmentation.box, low, high))
     padding = outside_reconstruction(volume.voxels[raw_box])
     if fill_cavities:
@@ -319,9 +321,17 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
     if fill_cavities:
-        # An inner wall left (a cortex too thin to stay above the level all round the inside): its outside, a
-        # little way down the gradient, is still the bone's.
-        inner = _facing_inward(image, vertices_ijk, mask, volume.spacing)
+        # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
+        # made in it): its outside, a little way down the gradient, is still the bone's, or enclosed by it along
+        # the grid's lines (with voxels that resolve the cortex: coarser ones merge bones a few mm apart).
+        bone_and_inside = mask
+        if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+            on_edge = [
+                (segmentation.origin[a] + low[a] == 0, segmentation.origin[a] + high[a] == volume.voxels.shape[a])
+                for a in range(3)
+            ]
+            bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
+        inner = _facing_inward(image, vertices_ijk, bone_and_inside, volume.spacing)
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
             logger.info("%d IPC points on inner walls left out", int(inner.sum()))
@@ -419,6 +429,43 @@ def _facing_inward(image, vertices, mask, spacing):
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
+
+
+#: A marrow cavity is at most this wide (mm) along a grid line: a wider space the bone surrounds (a pelvic ring's)
+#: is outside it.
+MAX_CAVITY_MM = 30.0
+
+
+def _enclosed_along_lines(mask, on_edge, spacing, padding=None):
+    """(I, J, K) booleans over a box: the voxels outside ``mask`` (the bone with its filled inside) that the bone
+    encloses along the grid's lines through them: along two of the three axes at least, the line meets the bone on
+    both sides within MAX_CAVITY_MM in all, and along the third the bone or the CT's edge on both sides
+    (``on_edge``: per axis, whether the box's low and high sides are the CT's; ``padding`` (I, J): outside a round
+    field of view), as in a marrow cavity the field of view cuts.
+
+    This finds the marrow that a hole in the cortex (a bracket's, a cortex thinner than the voxels) joins to the
+    outside, where the 3-D fill fails: only the lines through the hole are open. No line through a point outside a
+    convex bone meets it on both sides, and a pit or groove in its surface is open along one line at least.
+    """
+    narrow = np.zeros(mask.shape, dtype=np.uint8)  # along how many axes the bone is on both sides, near
+    closed = np.ones(mask.shape, dtype=bool)  # ... and along every axis the bone or the CT's edge on both sides
+    for axis in range(3):
+        shape = [1, 1, 1]
+        shape[axis] = mask.shape[axis]
+        index = np.arange(mask.shape[axis]).reshape(shape)
+        far = 10 * mask.shape[axis]
+        # The index of the nearest bone voxel before and after each voxel along the line (far off when none).
+        before = np.maximum.accumulate(np.where(mask, index, -far), axis=axis)
+        after = np.flip(np.minimum.accumulate(np.flip(np.where(mask, index, 2 * far), axis=axis), axis=axis), axis=axis)
+        narrow += (after - before) * spacing[axis] <= MAX_CAVITY_MM
+        edge_before = np.full(mask.shape, on_edge[axis][0])
+        edge_after = np.full(mask.shape, on_edge[axis][1])
+        if padding is not None and axis < 2:
+            wall = np.broadcast_to(padding[:, :, None], mask.shape)
+            edge_before = edge_before | np.logical_or.accumulate(wall, axis=axis)
+            edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(wall, axis=axis), axis=axis), axis=axis)
+        closed &= (edge_before | (before >= 0)) & (edge_after | (after < mask.shape[axis]))
+    return ~mask & closed & (narrow >= 2)
 
 
 #: The dark regions round a thin cortex are told apart once opened by a cube about this wide (mm).
