@@ -218,7 +218,8 @@ def _body_seeds(volume, segmentation, spheres, census, dim_links=True):
         for label in np.unique(local[inside]):
             if label > 0:
                 seeds[int(label)].append((sphere.centre, reach))
-    links = _dim_links(volume, segmentation, spheres, census.sizes) if dim_links else []
+    holding = [label for label, held in seeds.items() if held]  # the spheres' objects (theirs, or their posts')
+    links = _dim_links(volume, segmentation, spheres, census.sizes, holding) if dim_links else []
     for label, point in links + _post_feet(volume, segmentation, spheres):
         seeds[label].append((point, 1.0))
     return seeds
@@ -253,9 +254,10 @@ MAX_LINK_MM2 = 400.0
 DIM_CELL_MM = 1.5
 
 
-def _dim_links(volume, segmentation, spheres, sizes_all):
+def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     """[(label, point (3,) RAS)]: objects above the threshold that the spheres reach through dimmer parts of the
     reference body (posts or a frame between DIM_BODY_HU and the threshold, or plastic spheres): where they meet.
+    ``holding``: the labels of the objects that hold a sphere (its own, or its bright post's under a dim sphere).
 
     Followed on a grid of DIM_CELL_MM cells, each as bright as its brightest voxel; cells next to an object above
     the threshold are left out, so that the blurred rim every bright object has in air (which is in the dim range
@@ -265,7 +267,8 @@ def _dim_links(volume, segmentation, spheres, sizes_all):
     if not spheres:
         return []
     voxel_mm3 = float(np.prod(volume.spacing))
-    own = [s.label for s in spheres if s.label > 0 and sizes_all[s.label] * voxel_mm3 <= SPHERE_ON_POST_MM3]
+    own = {s.label for s in spheres if s.label > 0} | set(holding)
+    own = [label for label in sorted(own) if sizes_all[label] * voxel_mm3 <= SPHERE_ON_POST_MM3]
     if not own and not any(_dim_next_to(volume, segmentation, sphere) for sphere in spheres):
         return []  # nothing dim leaves any sphere: no dim post, no plastic sphere
     centres = np.array([sphere.centre for sphere in spheres])
@@ -280,7 +283,11 @@ def _dim_links(volume, segmentation, spheres, sizes_all):
         return []
     box = tuple(slice(a, b) for a, b in zip(low, high))
     brightest = _block_max(segmentation.smoothed[box], block)
-    bright = _block_max(segmentation.labels[box] > 0, block)
+    # Objects above the threshold; specks of noise smaller than an object (a dim frame's, with a noisy CT) are dim.
+    is_object = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
+    is_object[list(segmentation.object_labels)] = True
+    objects = is_object[segmentation.labels[box]]
+    bright = _block_max(objects, block)
     dim = (brightest >= DIM_BODY_HU) & ~ndimage.binary_dilation(bright, structure=np.ones((3, 3, 3), dtype=bool))
     regions, _ = ndimage.label(dim)
     # The dim parts that start at a sphere's surface: cells within 2.5 mm beyond it.
@@ -309,7 +316,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all):
         contacts = []
         for cell in np.argwhere(near):
             voxels = tuple(slice(a, a + n) for a, n in zip(low + cell * block, block))
-            inside = np.argwhere(segmentation.labels[voxels] > 0)
+            inside = np.argwhere(is_object[segmentation.labels[voxels]])
             label = int(segmentation.labels[voxels][tuple(inside[0])])
             contacts.append((label, inside[0] + low + cell * block + origin))
         for label in {label for label, _ in contacts}:

@@ -304,7 +304,12 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if level < segmentation.threshold_hu:
         # Below the threshold and above the surface level, the bone's voxels joined to it (cancellous bone about as
         # bright as the threshold) are the bone's too: wiped with the other objects, they would make a surface.
-        mask = mask | _joined_above(image >= level, mask, other)
+        # Only inside the bone (enclosed by it along the grid's lines) or at its edge: a dim bracket fixed into a bone
+        # in air is above a surface level that low too, and it is no bone.
+        near = ndimage.binary_dilation(mask, iterations=2)
+        if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+            near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
+        mask = mask | (_joined_above(image >= level, mask, other) & near)
     # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC, nor their blurred
     # rim where they come within two voxels of the bone.
     by_other = ndimage.binary_dilation(other, iterations=2) & ~mask if other.any() else None
@@ -326,10 +331,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # the grid's lines (with voxels that resolve the cortex: coarser ones merge bones a few mm apart).
         bone_and_inside = mask
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
-            on_edge = [
-                (segmentation.origin[a] + low[a] == 0, segmentation.origin[a] + high[a] == volume.voxels.shape[a])
-                for a in range(3)
-            ]
+            on_edge = _on_ct_edge(segmentation, low, high, volume)
             bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
         inner = _facing_inward(image, vertices_ijk, bone_and_inside, volume.spacing)
         if inner.any():
@@ -429,6 +431,13 @@ def _facing_inward(image, vertices, mask, spacing):
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
+
+
+def _on_ct_edge(segmentation, low, high, volume):
+    """Per axis, whether the low and high sides of a box (``low``, ``high``: corners in the segmentation's box) are
+    the CT's own sides."""
+    first, last = segmentation.origin + low, segmentation.origin + high
+    return [(first[a] == 0, last[a] == volume.voxels.shape[a]) for a in range(3)]
 
 
 #: A marrow cavity is at most this wide (mm) along a grid line: a wider space the bone surrounds (a pelvic ring's)
