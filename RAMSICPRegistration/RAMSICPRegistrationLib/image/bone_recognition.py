@@ -500,6 +500,13 @@ class _ObjectShape:
             return seeds
         return []
 
+    def _bone_like(self, cells):
+        """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU)."""
+        if cells.sum() * np.prod(self.cell) < MIN_BONE_MM3:
+            return False
+        contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
+        return contrast is not None and contrast >= CORTEX_CONTRAST_HU
+
     def _solid(self, cells):
         """True when ``cells`` have a rim no brighter than their inside (by less than SOLID_CONTRAST_HU)."""
         contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
@@ -561,6 +568,8 @@ class _ObjectShape:
         verdict = self.verdict(0, bone, ndimage.distance_transform_edt(bone, sampling=self.cell))
         if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
             return self.verdict(len(seeds)), None
+        if self._bone_like(rest & ~bone):  # what would be the body is bone too: the seeds were on the bone (where
+            return self.verdict(len(seeds)), None  # a dim bracket meets it), and the cut went through the bone
         logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
         # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell
         # or two more: IPC points that near the body's side are left out.

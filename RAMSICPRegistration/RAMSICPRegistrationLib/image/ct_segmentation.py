@@ -448,32 +448,36 @@ MAX_CAVITY_MM = 30.0
 def _enclosed_along_lines(mask, on_edge, spacing, padding=None):
     """(I, J, K) booleans over a box: the voxels outside ``mask`` (the bone with its filled inside) that the bone
     encloses along the grid's lines through them: along two of the three axes at least, the line meets the bone on
-    both sides within MAX_CAVITY_MM in all, and along the third the bone or the CT's edge on both sides
-    (``on_edge``: per axis, whether the box's low and high sides are the CT's; ``padding`` (I, J): outside a round
-    field of view), as in a marrow cavity the field of view cuts.
+    both sides within MAX_CAVITY_MM in all, and along the third the bone on one side within MAX_CAVITY_MM, or the
+    bone or the CT's edge on both sides (``on_edge``: per axis, whether the box's low and high sides are the CT's;
+    ``padding`` (I, J): outside a round field of view), as in a marrow cavity the field of view cuts.
 
-    This finds the marrow that a hole in the cortex (a bracket's, a cortex thinner than the voxels) joins to the
-    outside, where the 3-D fill fails: only the lines through the hole are open. No line through a point outside a
-    convex bone meets it on both sides, and a pit or groove in its surface is open along one line at least.
+    This finds the marrow that a hole in the cortex (a bracket's, a pin's, a cortex thinner than the voxels) joins
+    to the outside, where the 3-D fill fails, and the hole itself: across it the cortex round the hole is near on
+    two axes, and the opposite cortex along the third. No line through a point outside a convex bone meets it on
+    both sides; a pit in a bone's surface narrower than MAX_CAVITY_MM is taken for its inside too (its surface is
+    lost to the IPC, no false point is added).
     """
     narrow = np.zeros(mask.shape, dtype=np.uint8)  # along how many axes the bone is on both sides, near
-    closed = np.ones(mask.shape, dtype=bool)  # ... and along every axis the bone or the CT's edge on both sides
+    closed = np.ones(mask.shape, dtype=bool)  # ... and along every other one near on a side, or closed on both
     for axis in range(3):
         shape = [1, 1, 1]
         shape[axis] = mask.shape[axis]
-        index = np.arange(mask.shape[axis]).reshape(shape)
+        index = np.arange(mask.shape[axis], dtype=np.int32).reshape(shape)
         far = 10 * mask.shape[axis]
         # The index of the nearest bone voxel before and after each voxel along the line (far off when none).
         before = np.maximum.accumulate(np.where(mask, index, -far), axis=axis)
         after = np.flip(np.minimum.accumulate(np.flip(np.where(mask, index, 2 * far), axis=axis), axis=axis), axis=axis)
-        narrow += (after - before) * spacing[axis] <= MAX_CAVITY_MM
+        reach = MAX_CAVITY_MM / spacing[axis]
+        narrow += after - before <= reach
+        near = (index - before <= reach) | (after - index <= reach)
         edge_before = np.full(mask.shape, on_edge[axis][0])
         edge_after = np.full(mask.shape, on_edge[axis][1])
         if padding is not None and axis < 2:
             wall = np.broadcast_to(padding[:, :, None], mask.shape)
             edge_before = edge_before | np.logical_or.accumulate(wall, axis=axis)
             edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(wall, axis=axis), axis=axis), axis=axis)
-        closed &= (edge_before | (before >= 0)) & (edge_after | (after < mask.shape[axis]))
+        closed &= near | ((edge_before | (before >= 0)) & (edge_after | (after < mask.shape[axis])))
     return ~mask & closed & (narrow >= 2)
 
 
