@@ -127,7 +127,9 @@ def recognise_bone(volume, segmentation, spheres):
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
         return _recognise(volume, segmentation, plain, census)  # no object the dim parts could reach but the body's
     try:
-        return _recognise(volume, segmentation, _body_seeds(volume, segmentation, spheres, census), census)
+        linked = _body_seeds(volume, segmentation, spheres, census)
+        reached = {label for label, held in linked.items() if held and not plain[label]}  # by the dim parts only
+        return _recognise(volume, segmentation, linked, census, reached)
     except ValueError:
         # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
         # with the spheres and their posts' feet alone.
@@ -163,7 +165,10 @@ def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds, census):
     return False
 
 
-def _recognise(volume, segmentation, held, census):
+def _recognise(volume, segmentation, held, census, reached=()):
+    """The recognition, knowing where each object is the body's for sure (``held``: ``_body_seeds``); ``reached``:
+    the objects that only the dim parts lead to (a dim bracket may end in the bone: their cut must leave no
+    bone-like piece on the body's side)."""
     voxel_mm3 = float(np.prod(volume.spacing))
     sizes, slices = census.sizes, census.slices
     objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]
@@ -176,7 +181,7 @@ def _recognise(volume, segmentation, held, census):
         if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
             verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
         elif held[label]:
-            verdict, bone = shape.cut_off_body(held[label])
+            verdict, bone = shape.cut_off_body(held[label], no_bone_on_body=label in reached)
         else:
             verdict, bone = shape.verdict(0), None
             solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
@@ -512,10 +517,11 @@ class _ObjectShape:
         contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
         return contrast is not None and contrast < SOLID_CONTRAST_HU
 
-    def cut_off_body(self, seeds):
+    def cut_off_body(self, seeds, no_bone_on_body=False):
         """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``
         ([(point, reach mm)]: its spheres, the feet of its posts), cut off where a rod leaves it (see the module
-        docstring), or the verdict 'reference body' when no bone is in it."""
+        docstring), or the verdict 'reference body' when no bone is in it (or, with ``no_bone_on_body``, when the
+        body's side would hold a piece with a cortex)."""
         centres = np.array([point for point, _ in seeds])
         reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
         cells = self._cell_centres_ras()
@@ -568,8 +574,10 @@ class _ObjectShape:
         verdict = self.verdict(0, bone, ndimage.distance_transform_edt(bone, sampling=self.cell))
         if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
             return self.verdict(len(seeds)), None
-        if self._bone_like(rest & ~bone):  # what would be the body is bone too: the seeds were on the bone (where
-            return self.verdict(len(seeds)), None  # a dim bracket meets it), and the cut went through the bone
+        if no_bone_on_body and self._bone_like(rest & ~bone):
+            # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), and the cut
+            # went through the bone.
+            return self.verdict(len(seeds)), None
         logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
         # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell
         # or two more: IPC points that near the body's side are left out.

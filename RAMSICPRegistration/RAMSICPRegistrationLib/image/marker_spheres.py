@@ -50,10 +50,13 @@ RADIUS_TOLERANCE_MM = 0.6
 #: (twice this when at least 90 % of its surface is seen: a thick post's junction puts some edges off).
 MAX_OFF_SPHERE = 0.08
 RESIDUAL_LIMIT_MM = 0.2
-#: A sphere seen over less than this fraction of its surface is partial. A thick post and the frame it sits on hide
-#: up to a fifth of a marker that is still clean: seen over 80-84 %, such spheres fit within 0.08 mm of their
-#: centres in the family of reference-body CTs (``simulation.reference_ct_family``, seeds 4030, 4072, 4078).
-COVERAGE_LIMIT = 0.75
+#: A sphere seen over less than this fraction of its surface is partial: its centre is less sure. (A thick post
+#: and the frame hide up to a fifth of a marker; seen over 80-84 %, most such spheres of the family of
+#: reference-body CTs fit within 0.08 mm, but one by a 7 mm post 0.20 mm off: ``reference_ct_family`` seed 6180.)
+COVERAGE_LIMIT = 0.85
+#: A sphere whose rays find its usual surroundings (air) within its radius, not a post or frame, on more than this
+#: fraction of them is partial: a part of it is missing (a 4 mm cap is a fifth of the rays).
+MAX_MISSING = 0.05
 #: A fit whose radius is off by more than this (mm), or that sees less than MIN_COVERAGE, is not a marker sphere
 #: (rods of the frame fit spheres about 1.5 mm too small; the phantom's deformed sphere is 0.4 mm too large).
 NOT_A_SPHERE_MM = 0.75
@@ -357,7 +360,7 @@ def _fit_candidate(volume, segmentation, centre, radius):
     directions = _fibonacci_directions(RAYS)
     for _ in range(4):
         previous = centre
-        along, valid = _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
+        along, valid, hollow = _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
         if valid.sum() < MIN_RAYS:
             return None
         points = centre + along[valid, None] * directions[valid]
@@ -370,7 +373,8 @@ def _fit_candidate(volume, segmentation, centre, radius):
     coverage = _coverage(inliers - centre)
     if coverage < MIN_COVERAGE:
         return None
-    status, note = _status(volume, centre, radius, fitted_radius, rms, coverage, 1.0 - float(keep.mean()))
+    off_sphere, missing = 1.0 - float(keep.mean()), float(hollow.mean())
+    status, note = _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere, missing)
     return MarkerSphere(
         centre=centre,
         radius_mm=fitted_radius,
@@ -421,7 +425,12 @@ def _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
     rows = np.arange(len(directions))
     before, after = profiles[rows, np.maximum(first - 1, 0)], profiles[rows, first]
     fraction = np.clip((before - level) / np.maximum(before - after, 1e-6), 0.0, 1.0)
-    return along[np.maximum(first - 1, 0)] + fraction * RAY_STEP_MM, valid
+    # Rays that find the sphere's usual surroundings (air) inside its radius as well as outside: no post or frame
+    # hides the sphere there, part of it is missing.
+    tolerance = max(STREAK_TOLERANCE_HU, 0.1 * (inside_hu - usual))
+    with np.errstate(invalid="ignore"):
+        hollow = (np.abs(own_inside - usual) <= tolerance) & (np.abs(outside_hu - usual) <= tolerance)
+    return along[np.maximum(first - 1, 0)] + fraction * RAY_STEP_MM, valid, hollow
 
 
 def _label_at(volume, segmentation, centre):
@@ -465,10 +474,12 @@ def in_field_of_view(volume, point):
     return bool(volume.voxels[tuple(index)] > OUTSIDE_FIELD_OF_VIEW_HU)
 
 
-def _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere):
+def _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere, missing=0.0):
     if cut_by_field_of_view(volume, centre, radius):
         return "partial", f"cut by the edge of the field of view, {100 * coverage:.0f} % of its surface seen"
     round_enough = abs(fitted_radius - radius) <= RADIUS_TOLERANCE_MM and rms <= RESIDUAL_LIMIT_MM
+    if round_enough and missing > MAX_MISSING:
+        return "partial", f"{100 * missing:.0f} % of its rays find air within its radius (a cap missing?)"
     if round_enough and off_sphere > MAX_OFF_SPHERE * (2.0 if coverage >= 0.9 else 1.0):
         # Clean edges that are not on the sphere: a cap cut off (Fig. 4a), a dent; its centre may have moved.
         return "partial", f"{100 * off_sphere:.0f} % of the edge found lies off the sphere (a cap missing?)"
