@@ -181,9 +181,12 @@ def _recognise(volume, segmentation, held, census, reached=()):
         if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
             verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
         elif held[label]:
-            # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too.
-            seeds = held[label] + shape.solid_parts()
-            verdict, bone = shape.cut_off_body(seeds, no_bone_on_body=label in reached)
+            # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too, unless with them
+            # no bone is left (a solid bracket resting on the bone: its core's reach takes in the bone's).
+            solid = shape.solid_parts()
+            verdict, bone = shape.cut_off_body(held[label] + solid, no_bone_on_body=label in reached)
+            if solid and bone is None:
+                verdict, bone = shape.cut_off_body(held[label], no_bone_on_body=label in reached)
         else:
             verdict, bone = shape.verdict(0), None
             solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
