@@ -98,3 +98,19 @@ def test_tibia_phantom_markers_and_ipc(tibia_phantom, tibia_patient):
     pairing = pair_by_geometry(detection.ok_centres, tibia_patient.markers_reference)
     errors = np.linalg.norm(detection.ok_centres[pairing.indices] - truth.marker_centres, axis=1)
     assert errors.max() < 0.1
+
+
+def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_air_inside_is_partial():
+    # The status rules on a sphere well inside a CT of air: seen over 80 % (a thick post hides the rest) it is clean
+    # when its edge fits within CLEAN_FIT_MM, partial when it fits worse (a post's blur moved it); seen all round,
+    # it is partial when a fifth of its rays find air inside its radius (a cap missing).
+    from RAMSICPRegistrationLib.image.marker_spheres import CLEAN_FIT_MM, _status
+
+    volume = analytic_volume([], size_mm=(40.0, 40.0, 40.0), background_hu=-1000.0, noise_hu=0.0)
+    centre = volume.ijk_to_ras_points((np.array(volume.voxels.shape) - 1)[None] / 2.0)[0]
+    assert _status(volume, centre, 5.75, 5.7, CLEAN_FIT_MM / 2, 0.8, 0.0)[0] == "ok"
+    status, note = _status(volume, centre, 5.75, 5.7, 2 * CLEAN_FIT_MM, 0.8, 0.0)
+    assert status == "partial" and "80 % of its surface" in note
+    assert _status(volume, centre, 5.75, 5.7, 0.02, 0.7, 0.0)[0] == "partial"  # too little seen, however clean
+    status, note = _status(volume, centre, 5.75, 5.7, 0.02, 1.0, 0.0, missing=0.2)
+    assert status == "partial" and "20 % of its rays find air" in note
