@@ -11,6 +11,9 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    plausibly bone survives is just over the bracket's (the neck the opening cut). That part, and the thin bits
    hanging off it that do not lead to a sphere, is the bone; the rest (bracket, frame, posts) is the body, and
    IPC points within that radius and a cell of it are left out (the bracket's stub, the corner the blur fills).
+   Where no sphere says where the body is (its spheres out of view or sunk into its frame) or the spheres miss a
+   part of it, the opening tells it too: a **solid** part (its rim no brighter than its inside: a frame, a
+   bracket) that falls apart from a part with a cortex is the body's.
 3. **Plausibly bone:** at least ``MIN_BONE_MM3`` (cavities filled), at least ``MIN_HALF_THICKNESS_MM`` from its
    surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
@@ -296,8 +299,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     # Objects above the threshold; specks of noise smaller than an object (a dim frame's, with a noisy CT) are dim.
     is_object = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
     is_object[list(segmentation.object_labels)] = True
-    objects = is_object[segmentation.labels[box]]
-    bright = _block_max(objects, block)
+    bright = _block_max(is_object[segmentation.labels[box]], block)
     dim = (brightest >= DIM_BODY_HU) & ~ndimage.binary_dilation(bright, structure=np.ones((3, 3, 3), dtype=bool))
     regions, _ = ndimage.label(dim)
     # The dim parts that start at a sphere's surface: cells within 2.5 mm beyond it.
@@ -693,7 +695,7 @@ def _filled(mask, open_sides=(), padding=None):
         holes, _ = ndimage.label(~mask, structure=in_slice)  # every slice labelled apart, in one call
         edge = [np.take(holes, side, axis=a) for a in range(3) if a != axis for side in (0, -1)]
         filled |= (holes > 0) & ~np.isin(holes, np.unique(np.concatenate([e.ravel() for e in edge])))
-    if open_sides and len(open_sides) < 6:
+    if 0 < len(open_sides) < 6:  # (none: it fills the field of view; all: the slices found its enclosed holes)
         holes, _ = ndimage.label(~filled if padding is None else ~filled & ~padding)
         outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
         filled |= (holes > 0) & ~np.isin(holes, outside)

@@ -459,12 +459,10 @@ def cut_by_field_of_view(volume, centre, radius):
         return True
     # Padding at -1024 HU looks like air voxel by voxel, but its columns hold that one value in every slice (air
     # has noise): any such column by the sphere is the round field of view's outside.
-    lowest = float(volume.voxels.min())
-    if lowest > -1024.0:
-        return False
-    rows, columns = np.nonzero((near & (values == lowest)).any(axis=2))
+    rows, columns = np.nonzero((near & (values <= -1024)).any(axis=2))
     for i, j in set(zip(rows + box[0].start, columns + box[1].start)):
-        if (volume.voxels[i, j, :] == lowest).all():
+        column = volume.voxels[i, j, :]
+        if (column == column[0]).all():
             return True
     return False
 
