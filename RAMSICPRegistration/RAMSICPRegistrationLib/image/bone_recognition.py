@@ -497,7 +497,7 @@ class _ObjectShape:
             contrasts = []
             for core in big:
                 part = self.filled & self._within(cores == core, opening)
-                contrasts.append(self._cortex(part, ndimage.distance_transform_edt(part, sampling=self.cell)))
+                contrasts.append(self._cortex(part, self._depth_of(part)))
             solid = [core for core, c in zip(big, contrasts) if c is not None and c < SOLID_CONTRAST_HU]
             if not solid or not any(c is not None and c >= CORTEX_CONTRAST_HU for c in contrasts):
                 continue
@@ -516,12 +516,12 @@ class _ObjectShape:
         """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU)."""
         if cells.sum() * np.prod(self.cell) < MIN_BONE_MM3:
             return False
-        contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
+        contrast = self._cortex(cells, self._depth_of(cells))
         return contrast is not None and contrast >= CORTEX_CONTRAST_HU
 
     def _solid(self, cells):
         """True when ``cells`` have a rim no brighter than their inside (by less than SOLID_CONTRAST_HU)."""
-        contrast = self._cortex(cells, ndimage.distance_transform_edt(cells, sampling=self.cell))
+        contrast = self._cortex(cells, self._depth_of(cells))
         return contrast is not None and contrast < SOLID_CONTRAST_HU
 
     def cut_off_body(self, seeds, no_bone_on_body=False):
@@ -578,7 +578,7 @@ class _ObjectShape:
             kept, core_kept = opening, part
             bone = rest & ~apart & self._within(part, opening)
         bone = self._with_thin_bits(bone, rest & ~apart, near_sphere | apart)
-        verdict = self.verdict(0, bone, ndimage.distance_transform_edt(bone, sampling=self.cell))
+        verdict = self.verdict(0, bone, self._depth_of(bone))
         if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
             return self.verdict(len(seeds)), None
         if no_bone_on_body and self._bone_like(rest & ~bone):
@@ -635,6 +635,15 @@ class _ObjectShape:
         box = tuple(slice(max(s.start - p, 0), min(s.stop + p, n)) for s, p, n in zip(boxes[0], pad, cells.shape))
         distance[box] = ndimage.distance_transform_edt(~cells[box], sampling=self.cell)
         return distance
+
+    def _depth_of(self, cells):
+        """Depths (mm) of ``cells`` under their own surface (0 outside them): the transform runs on their box only."""
+        depth = np.zeros(cells.shape)
+        boxes = ndimage.find_objects(cells.view(np.uint8))
+        if boxes and boxes[0] is not None:
+            box = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(boxes[0], cells.shape))
+            depth[box] = ndimage.distance_transform_edt(cells[box], sampling=self.cell)
+        return depth
 
     def _within(self, cells, reach_mm):
         """The cells within ``reach_mm`` of any of ``cells`` (a dilation by a ball, in mm on the anisotropic grid)."""
