@@ -500,12 +500,7 @@ def _pair_with_tool(volume, spheres, tool_markers, radius):
     dropped)."""
     count = len(tool_markers)
     try:
-        pairing = pair_by_geometry(
-            [sphere.centre for sphere in spheres],
-            tool_markers,
-            points_name="the sphere centres found in the CT",
-            reference_name="the reference body",
-        )
+        pairing = _clean_first_pairing(spheres, tool_markers)
     except ValueError:
         clean = [sphere for sphere in spheres if sphere.status == "ok"]
         return (
@@ -535,6 +530,10 @@ def _pair_with_tool(volume, spheres, tool_markers, radius):
             if row not in used
         ]
         distance, row = min(near) if near else (np.inf, -1)
+        if distance <= PAIRING_TOLERANCE_MM:  # a flagged sphere where the clean ones put the marker: that marker
+            numbered[marker + 1] = replace(spheres[row], number=marker + 1)
+            used.add(row)
+            continue
         if distance <= NEAR_EXPECTED_MM:
             # A sphere where the marker should be, off by more than the pairing allows: that marker, not round.
             sphere = spheres[row]
@@ -570,6 +569,24 @@ def _pair_with_tool(volume, spheres, tool_markers, radius):
     dropped = len(spheres) - len(used) - len(others)
     ordered = [numbered[number] for number in sorted(numbered)] + others
     return ordered, pairing, missing, warnings, dropped
+
+
+def _clean_first_pairing(spheres, tool_markers):
+    """``pair_by_geometry`` of the spheres with the tool, the clean ones first: when at least 3 clean spheres pair,
+    that pairing stands (its rows those of ``spheres``), though flagged ones would pair more markers: the feet of
+    the posts lie in the tool's pattern too, shifted by the posts' length, and fit as flagged spheres. Otherwise all
+    the spheres are paired. Raises ValueError as ``pair_by_geometry`` does."""
+    names = {"points_name": "the sphere centres found in the CT", "reference_name": "the reference body"}
+    clean = [row for row, sphere in enumerate(spheres) if sphere.status == "ok"]
+    if 3 <= len(clean) < len(spheres):
+        try:
+            pairing = pair_by_geometry([spheres[row].centre for row in clean], tool_markers, **names)
+        except ValueError:
+            pass
+        else:
+            rows = np.array([clean[i] if i >= 0 else -1 for i in pairing.indices])
+            return replace(pairing, indices=rows)
+    return pair_by_geometry([sphere.centre for sphere in spheres], tool_markers, **names)
 
 
 def _without_duplicates(spheres, radius):
