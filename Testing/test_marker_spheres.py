@@ -114,3 +114,29 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     assert _status(volume, centre, 5.75, 5.7, 0.02, 0.7, 0.0)[0] == "partial"  # too little seen, however clean
     status, note = _status(volume, centre, 5.75, 5.7, 0.02, 1.0, 0.0, missing=0.2)
     assert status == "partial" and "20 % of its rays find air" in note
+
+
+def test_clean_spheres_are_paired_first_and_the_posts_feet_do_not_take_markers():
+    # Three clean spheres at markers 1-3 of the tool and four flagged 'spheres' at the posts' feet: the whole
+    # pattern shifted 10 mm along the tool's normal, which pairs all 4 markers. The clean three must be markers
+    # 1-3, marker 4 said missing where they put it, and no foot numbered.
+    from RAMSICPRegistrationLib.image.marker_spheres import MarkerSphere, _pair_with_tool
+
+    tool = tool_marker_geometry()
+    pose = make_transform(rotation_about_axis(np.array([0.3, -0.5, 0.8]), 0.7), np.array([10.0, -20.0, 30.0]))
+    centres = apply_transform(pose, tool)
+    normal = np.linalg.svd(centres - centres.mean(axis=0))[2][2]
+
+    def sphere(centre, status):
+        return MarkerSphere(
+            centre, 5.7, 0.03, 0.9 if status == "ok" else 0.7, status, 300, 0, "" if status == "ok" else "flagged"
+        )
+
+    spheres = [sphere(c, "ok") for c in centres[:3]] + [sphere(c + 10.0 * normal, "partial") for c in centres]
+    volume = analytic_volume([], spacing=(4.0, 4.0, 4.0), size_mm=(300.0, 300.0, 300.0), background_hu=-1000.0)
+    ordered, pairing, missing, _, _ = _pair_with_tool(volume, spheres, tool, 5.75)
+    numbered = {s.number: s for s in ordered if s.number}
+    assert sorted(numbered) == [1, 2, 3]
+    for number in (1, 2, 3):
+        assert np.allclose(numbered[number].centre, centres[number - 1])
+    assert [m.number for m in missing] == [4] and np.linalg.norm(missing[0].expected - centres[3]) < 0.01
