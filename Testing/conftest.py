@@ -125,6 +125,19 @@ def analytic_volume(
     return CTVolume(voxels=voxels.astype(np.float32), ijk_to_ras=ijk_to_ras)
 
 
+def damage_npz(path, edit=None):
+    """Damage a cache file (``.npz``) as a crash or another version would: cut it in half when ``edit`` is None,
+    else rewrite it whole with ``edit(arrays)`` applied to its arrays (a dict, changed in place)."""
+    if edit is None:  # a write cut short by a crash of an older version, a full disk
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+        return
+    with np.load(path) as stored:
+        arrays = dict(stored)
+    edit(arrays)
+    with open(path, "wb") as stream:
+        np.savez(stream, **arrays)
+
+
 def sphere_sdf(centre, radius):
     centre = np.asarray(centre, dtype=np.float64)
     return lambda points: np.linalg.norm(points - centre, axis=-1) - radius

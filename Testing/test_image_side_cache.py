@@ -17,6 +17,8 @@ from RAMSICPRegistrationLib.navigation.image_side_cache import cached_image_side
 from RAMSICPRegistrationLib.simulation.ct_phantom import make_ct_phantom
 from RAMSICPRegistrationLib.simulation.package_data import bone_mesh
 
+from conftest import damage_npz
+
 PHANTOMS = {
     "clean": {},
     "steel pin": {"metal": "pin"},
@@ -103,17 +105,14 @@ def test_a_damaged_cache_file_is_made_again_and_replaced(tmp_path, ct, caplog, d
     cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
     (path,) = tmp_path.iterdir()
     whole = path.read_bytes()
-    if damage == "truncated":  # a write cut short by a crash of an older version, a full disk
-        path.write_bytes(whole[: len(whole) // 2])
-    else:
-        with np.load(path) as stored:
-            arrays = dict(stored)
-        if damage == "labels of another CT":
-            arrays["label_shape"] = arrays["label_shape"] + 1
-        else:
-            arrays["surface_triangles"] = arrays["surface_triangles"] + len(arrays["surface_points"])
-        with open(path, "wb") as stream:
-            np.savez(stream, **arrays)
+    edits = {
+        "truncated": None,
+        "labels of another CT": lambda arrays: arrays.update(label_shape=arrays["label_shape"] + 1),
+        "triangles out of range": lambda arrays: arrays.update(
+            surface_triangles=arrays["surface_triangles"] + len(arrays["surface_points"])
+        ),
+    }
+    damage_npz(path, edits[damage])
     with caplog.at_level(logging.WARNING, logger=image_side_cache.__name__):
         result = cached_image_side(volume, tool_markers=TOOL, directory=tmp_path)
     assert "damaged" in caplog.text and "processing the CT again" in caplog.text

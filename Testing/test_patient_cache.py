@@ -13,6 +13,8 @@ from RAMSICPRegistrationLib.simulation import package_data, patient_cache
 from RAMSICPRegistrationLib.simulation.package_data import shipped_patient
 from RAMSICPRegistrationLib.simulation.patient_cache import cached_shipped_patient, patient_key, shared_shipped_patient
 
+from conftest import damage_npz
+
 CASES = [("right-tibia", 0), ("right-ilium", 3)]
 
 
@@ -60,17 +62,14 @@ def test_a_damaged_cache_file_is_built_again_and_replaced(tmp_path, built, caplo
     cached_shipped_patient(bone, seed, directory=tmp_path)
     (path,) = tmp_path.iterdir()
     whole = path.read_bytes()
-    if damage == "truncated":
-        path.write_bytes(whole[: len(whole) // 2])
-    else:
-        with np.load(path) as stored:
-            arrays = dict(stored)
-        if damage == "sub-areas that do not add up":
-            arrays["patient_sub_area_sizes"] = arrays["patient_sub_area_sizes"] + 1
-        else:
-            arrays["patient_reference_to_image"] = np.eye(3)
-        with open(path, "wb") as stream:
-            np.savez(stream, **arrays)
+    edits = {
+        "truncated": None,
+        "sub-areas that do not add up": lambda arrays: arrays.update(
+            patient_sub_area_sizes=arrays["patient_sub_area_sizes"] + 1
+        ),
+        "a matrix of the wrong shape": lambda arrays: arrays.update(patient_reference_to_image=np.eye(3)),
+    }
+    damage_npz(path, edits[damage])
     with caplog.at_level(logging.WARNING, logger=patient_cache.__name__):
         *read, was_built = cached_shipped_patient(bone, seed, directory=tmp_path)
     assert was_built and "damaged" in caplog.text and "building it again" in caplog.text

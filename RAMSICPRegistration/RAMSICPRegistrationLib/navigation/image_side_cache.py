@@ -21,7 +21,6 @@ result of ``cached_image_side``, read or made.
 import hashlib
 import logging
 import time
-import zipfile
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from ..image.ct_pipeline import ImageSideResult, process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU, BoneSegmentation, BoneSurface
 from ..image.marker_spheres import MarkerSphere
 from ..image.metal import MetalZone
-from ..io.atomic_files import atomic_path
+from ..io.npz_cache import read_npz, write_npz
 from ..simulation.phantom_cache import library_sources
 
 logger = logging.getLogger(__name__)
@@ -80,12 +79,7 @@ def cached_image_side(
     result = replace(result, segmentation=replace(result.segmentation, smoothed=None))  # the same whether read or not
     if result.missing:
         return result  # where the missing marker is expected is reported from a whole processing, every time
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary, open(temporary, "wb") as stream:
-            np.savez(stream, **_arrays(result))
-    except OSError as error:
-        logger.warning("the processed CT could not be cached in %s (%s); it will be processed again", path, error)
+    write_npz(path, _arrays(result), logger, "processed CT", "it will be processed again")
     return result
 
 
@@ -128,14 +122,7 @@ def _arrays(result):
 
 def _read(path, shape):
     """The ImageSideResult in ``path``, or None when there is none or it is damaged (then it is made again)."""
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as stored:
-            return _result(stored, shape)
-    except (OSError, ValueError, KeyError, IndexError, TypeError, EOFError, zipfile.BadZipFile) as error:
-        logger.warning("the cached processed CT %s is damaged (%s): processing the CT again", path, error)
-        return None
+    return read_npz(path, lambda stored: _result(stored, shape), logger, "processed CT", "processing the CT again")
 
 
 def _result(stored, shape):

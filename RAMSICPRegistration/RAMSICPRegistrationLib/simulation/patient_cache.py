@@ -13,14 +13,13 @@ A cache that cannot be written costs only the time. ``shared_shipped_patient`` r
 
 import hashlib
 import logging
-import zipfile
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from ..io.atomic_files import atomic_path
 from ..io.ndi_tools import DEFAULT_REFERENCE_TOOL, tool_marker_geometry
+from ..io.npz_cache import read_npz, write_npz
 from .phantom_cache import library_sources
 
 logger = logging.getLogger(__name__)
@@ -63,12 +62,8 @@ def cached_shipped_patient(bone="right-tibia", seed=0, directory=None):
     arrays["has_exposed_points"] = patient.exposed_points is not None
     arrays["sub_area_sizes"] = [len(points) for points in patient.sub_area_points]
     arrays["sub_area_points"] = np.vstack(patient.sub_area_points).reshape(-1, 3)
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary, open(temporary, "wb") as stream:
-            np.savez(stream, vertices=vertices, triangles=triangles, **{f"patient_{k}": v for k, v in arrays.items()})
-    except OSError as error:
-        logger.warning("the virtual patient could not be cached in %s (%s); it will be built again", path, error)
+    stored = {"vertices": vertices, "triangles": triangles, **{f"patient_{k}": v for k, v in arrays.items()}}
+    write_npz(path, stored, logger, "virtual patient", "it will be built again")
     return patient, vertices, triangles, True
 
 
@@ -93,34 +88,32 @@ def shared_shipped_patient(bone="right-tibia", seed=0):
 
 def _read(path):
     """(patient, vertices, triangles) from ``path``, or None when there is none or it is damaged."""
+    return read_npz(path, _patient, logger, "virtual patient", "building it again")
+
+
+def _patient(stored):
+    """(patient, vertices, triangles) from the arrays of a cache file; ValueError when they do not make one."""
     from .virtual_patient import VirtualPatient
 
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as stored:
-            arrays = {name[len("patient_") :]: stored[name] for name in stored.files if name.startswith("patient_")}
-            vertices, triangles = stored["vertices"], stored["triangles"]
-        sizes = arrays.pop("sub_area_sizes")
-        points = arrays.pop("sub_area_points")
-        if points.ndim != 2 or points.shape[1] != 3 or int(sizes.sum()) != len(points):
-            raise ValueError("its sub-area points do not add up")
-        has_exposed = bool(arrays.pop("has_exposed_points"))
-        patient = VirtualPatient(
-            sub_area_points=tuple(np.split(points, np.cumsum(sizes)[:-1])),
-            cut_height_mm=float(arrays.pop("cut_height_mm")),
-            anatomy=str(arrays.pop("anatomy")),
-            exposed_points=arrays.pop("exposed_points") if has_exposed else None,
-            **arrays,
-        )
-        shapes = {"ipc": (-1, 3), "reference_to_image": (4, 4), "markers_reference": (-1, 3), "targets_image": (-1, 3)}
-        for name, shape in shapes.items():
-            array = getattr(patient, name)
-            if array.ndim != 2 or any(want not in (-1, have) for want, have in zip(shape, array.shape)):
-                raise ValueError(f"its {name} is {array.shape}")
-        if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
-            raise ValueError("its mesh is not (V, 3) vertices and (K, 3) triangles")
-        return patient, vertices, triangles
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as error:
-        logger.warning("the cached virtual patient %s is damaged (%s): building it again", path, error)
-        return None
+    arrays = {name[len("patient_") :]: stored[name] for name in stored.files if name.startswith("patient_")}
+    vertices, triangles = stored["vertices"], stored["triangles"]
+    sizes = arrays.pop("sub_area_sizes")
+    points = arrays.pop("sub_area_points")
+    if points.ndim != 2 or points.shape[1] != 3 or int(sizes.sum()) != len(points):
+        raise ValueError("its sub-area points do not add up")
+    has_exposed = bool(arrays.pop("has_exposed_points"))
+    patient = VirtualPatient(
+        sub_area_points=tuple(np.split(points, np.cumsum(sizes)[:-1])),
+        cut_height_mm=float(arrays.pop("cut_height_mm")),
+        anatomy=str(arrays.pop("anatomy")),
+        exposed_points=arrays.pop("exposed_points") if has_exposed else None,
+        **arrays,
+    )
+    shapes = {"ipc": (-1, 3), "reference_to_image": (4, 4), "markers_reference": (-1, 3), "targets_image": (-1, 3)}
+    for name, shape in shapes.items():
+        array = getattr(patient, name)
+        if array.ndim != 2 or any(want not in (-1, have) for want, have in zip(shape, array.shape)):
+            raise ValueError(f"its {name} is {array.shape}")
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or triangles.shape[1] != 3:
+        raise ValueError("its mesh is not (V, 3) vertices and (K, 3) triangles")
+    return patient, vertices, triangles

@@ -13,13 +13,12 @@ import hashlib
 import logging
 import os
 import sys
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from ..image.volume_io import check_volume
-from ..io.atomic_files import atomic_path
+from ..io.npz_cache import read_npz, write_npz
 
 logger = logging.getLogger(__name__)
 
@@ -98,25 +97,18 @@ def cached_ct_phantom(patient, vertices, triangles, seed=0, directory=None, **op
     if volume is not None:
         return volume, False
     volume, _ = make_ct_phantom(patient, vertices, triangles, seed=seed, **options)
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary, open(temporary, "wb") as stream:
-            np.savez(stream, voxels=volume.voxels, ijk_to_ras=volume.ijk_to_ras)
-    except OSError as error:
-        logger.warning("the CT phantom could not be cached in %s (%s); it will be built again next time", path, error)
+    arrays = {"voxels": volume.voxels, "ijk_to_ras": volume.ijk_to_ras}
+    write_npz(path, arrays, logger, "CT phantom", "it will be built again next time")
     return volume, True
 
 
 def _read(path):
     """The CTVolume in ``path``, or None when there is none or it is damaged (then it is rebuilt)."""
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as stored:
-            volume = check_volume(stored["voxels"], stored["ijk_to_ras"], name=f"cached phantom {path.name}")
+
+    def decode(stored):
+        volume = check_volume(stored["voxels"], stored["ijk_to_ras"], name=f"cached phantom {path.name}")
         if not np.isfinite(volume.voxels).all():
             raise ValueError("it holds non-finite voxels")
         return volume
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
-        logger.warning("the cached CT phantom %s is damaged (%s): building it again", path, error)
-        return None
+
+    return read_npz(path, decode, logger, "CT phantom", "building it again")
