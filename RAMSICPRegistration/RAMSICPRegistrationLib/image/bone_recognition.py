@@ -25,6 +25,7 @@ Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised 
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import ndimage
@@ -125,7 +126,7 @@ def recognise_bone(volume, segmentation, spheres):
         ValueError: no object is plausibly bone; the message lists what was found.
     """
     # Each object's voxel count and box, once: each is a pass over the whole segmentation.
-    census = _Census(np.bincount(segmentation.labels.ravel()), ndimage.find_objects(segmentation.labels))
+    census = _Census(np.bincount(segmentation.labels.ravel()), ndimage.find_objects(segmentation.labels), {})
     plain = _body_seeds(volume, segmentation, spheres, census, dim_links=False)
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
         return _recognise(volume, segmentation, plain, census)  # no object the dim parts could reach but the body's
@@ -142,10 +143,12 @@ def recognise_bone(volume, segmentation, spheres):
 @dataclass(frozen=True)
 class _Census:
     """The segmentation's objects: ``sizes`` (L + 1,) voxels per label (0 the background), ``slices`` their boxes
-    (``ndimage.find_objects``, label 1 first)."""
+    (``ndimage.find_objects``, label 1 first), ``shapes`` {label: _ObjectShape} as they are measured (a second
+    recognition, with other seeds, measures none again)."""
 
     sizes: np.ndarray
     slices: list
+    shapes: dict
 
 
 def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds, census):
@@ -180,19 +183,21 @@ def _recognise(volume, segmentation, held, census, reached=()):
         if sizes[label] * voxel_mm3 < MIN_BONE_MM3 / 4.0:  # even filled it cannot be a bone
             verdicts.append(ObjectVerdict(label, sizes[label] * voxel_mm3, 0.0, None, len(held[label]), "too small"))
             continue
-        shape = _ObjectShape(volume, segmentation, label, slices[label - 1])
+        if label not in census.shapes:
+            census.shapes[label] = _ObjectShape(volume, segmentation, label, slices[label - 1])
+        shape = census.shapes[label]
         if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
             verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
         elif held[label]:
             # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too, unless with them
             # no bone is left (a solid bracket resting on the bone: its core's reach takes in the bone's).
-            solid = shape.solid_parts()
+            solid = shape.solid_parts
             verdict, bone = shape.cut_off_body(held[label] + solid, no_bone_on_body=label in reached)
             if solid and bone is None:
                 verdict, bone = shape.cut_off_body(held[label], no_bone_on_body=label in reached)
         else:
             verdict, bone = shape.verdict(0), None
-            solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
+            solid = shape.solid_parts if verdict.verdict.startswith("bone") else []
             if solid:  # a body whose spheres are out of view or sunk into its frame, joined to the bone
                 verdict, bone = shape.cut_off_body(solid)
         verdicts.append(verdict)
@@ -472,6 +477,7 @@ class _ObjectShape:
             return None
         return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
 
+    @cached_property
     def solid_parts(self):
         """[(point (3,) RAS, reach mm)]: where the object is a solid part (a frame, a bracket: no cortex) joined to a
         part with a cortex, [] when it is not: the body's seeds when no marker sphere says where it is (its spheres
