@@ -188,3 +188,49 @@ def test_marrow_opened_by_a_hole_is_enclosed_along_the_lines_and_the_outside_is_
     wide = np.zeros((5, 5, 40), dtype=bool)
     wide[:, :, 0] = wide[:, :, 39] = True
     assert not _enclosed_along_lines(wide, on_edge, np.ones(3)).any()
+
+
+def enclosed_by_walking_the_lines(mask, on_edge, spacing, padding):
+    """The line enclosure by its definition, voxel by voxel: the nearest bone before and after along each axis."""
+    from RAMSICPRegistrationLib.image.ct_segmentation import MAX_CAVITY_MM
+
+    enclosed = np.zeros(mask.shape, dtype=bool)
+    for voxel in zip(*np.nonzero(~mask)):
+        narrow, closed = 0, True
+        for axis in range(3):
+            line = mask[tuple(slice(None) if a == axis else v for a, v in enumerate(voxel))]
+            here, reach = voxel[axis], MAX_CAVITY_MM / spacing[axis]
+            before = [i for i in range(here + 1) if line[i]]
+            after = [i for i in range(here, len(line)) if line[i]]
+            narrow += bool(before and after and after[0] - before[-1] <= reach)
+            near = (before and here - before[-1] <= reach) or (after and after[0] - here <= reach)
+            walled = padding is not None and axis < 2
+            past = (
+                [padding[tuple(i if a == axis else voxel[a] for a in range(2))] for i in range(len(line))]
+                if walled
+                else []
+            )
+            closed_before = on_edge[axis][0] or bool(before) or (walled and any(past[: here + 1]))
+            closed_after = on_edge[axis][1] or bool(after) or (walled and any(past[here:]))
+            closed &= bool(near or (closed_before and closed_after))
+        enclosed[voxel] = closed and narrow >= 2
+    return enclosed
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_line_enclosure_matches_its_definition_on_random_masks(seed):
+    from scipy import ndimage
+
+    from RAMSICPRegistrationLib.image.ct_segmentation import _enclosed_along_lines
+
+    rng = np.random.default_rng(seed)
+    for _ in range(12):
+        shape = tuple(int(n) for n in rng.integers(2, 16, size=3))
+        mask = ndimage.gaussian_filter(rng.normal(size=shape), rng.uniform(0.5, 2.0)) > rng.uniform(-0.5, 0.5)
+        spacing = rng.uniform(1.5, 6.0, size=3)  # 5 to 20 voxels of reach: walls both near and far apart
+        on_edge = [tuple(bool(side) for side in rng.random(2) < 0.3) for _ in range(3)]
+        padding = rng.random(shape[:2]) < 0.1 if rng.random() < 0.5 else None
+        np.testing.assert_array_equal(
+            _enclosed_along_lines(mask, on_edge, spacing, padding),
+            enclosed_by_walking_the_lines(mask, on_edge, spacing, padding),
+        )

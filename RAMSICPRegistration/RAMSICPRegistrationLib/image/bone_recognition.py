@@ -31,6 +31,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .morphology import dilate, dilate_by_cube
 from .sphere_candidates import block_means
 
 logger = logging.getLogger(__name__)
@@ -126,7 +127,9 @@ def recognise_bone(volume, segmentation, spheres):
         ValueError: no object is plausibly bone; the message lists what was found.
     """
     # Each object's voxel count and box, once: each is a pass over the whole segmentation.
-    census = _Census(np.bincount(segmentation.labels.ravel()), ndimage.find_objects(segmentation.labels), {})
+    slices = ndimage.find_objects(segmentation.labels)
+    labels = segmentation.labels[segmentation.labels > 0]  # the objects' voxels: a few % of the box
+    census = _Census(np.bincount(labels, minlength=len(slices) + 1), slices, {})
     plain = _body_seeds(volume, segmentation, spheres, census, dim_links=False)
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
         return _recognise(volume, segmentation, plain, census)  # no object the dim parts could reach but the body's
@@ -142,7 +145,7 @@ def recognise_bone(volume, segmentation, spheres):
 
 @dataclass(frozen=True)
 class _Census:
-    """The segmentation's objects: ``sizes`` (L + 1,) voxels per label (0 the background), ``slices`` their boxes
+    """The segmentation's objects: ``sizes`` (L + 1,) voxels per label (0 for the background), ``slices`` their boxes
     (``ndimage.find_objects``, label 1 first), ``shapes`` {label: _ObjectShape} as they are measured (a second
     recognition, with other seeds, measures none again)."""
 
@@ -305,7 +308,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     is_object = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
     is_object[list(segmentation.object_labels)] = True
     bright = _block_max(is_object[segmentation.labels[box]], block)
-    dim = (brightest >= DIM_BODY_HU) & ~ndimage.binary_dilation(bright, structure=np.ones((3, 3, 3), dtype=bool))
+    dim = (brightest >= DIM_BODY_HU) & ~dilate_by_cube(bright)
     regions, _ = ndimage.label(dim)
     # The dim parts that start at a sphere's surface: cells within 2.5 mm beyond it.
     grid = np.stack(np.meshgrid(*[np.arange(n) for n in dim.shape], indexing="ij"), axis=-1)
@@ -321,7 +324,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     # already, and its cells would start the dim parts in the soft tissue round the bone.)
     if own:
         own_cells = _block_max(np.isin(segmentation.labels[box], own), block)
-        start |= ndimage.binary_dilation(own_cells, iterations=2) & posts
+        start |= dilate(own_cells, iterations=2) & posts
     linked = np.unique(regions[start & dim])
     sizes = np.bincount(regions.ravel())
     cell_mm3 = float(np.prod(volume.spacing * block))
@@ -329,7 +332,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     for region in linked[linked > 0]:
         if sizes[region] * cell_mm3 > DIM_BODY_MAX_MM3:
             continue
-        near = ndimage.binary_dilation(regions == region, iterations=2) & bright
+        near = dilate(regions == region, iterations=2) & bright
         contacts = []
         for cell in np.argwhere(near):
             voxels = tuple(slice(a, a + n) for a, n in zip(low + cell * block, block))
@@ -389,7 +392,7 @@ def _dim_next_to(volume, segmentation, sphere):
     low = np.maximum(np.array([s.start for s in box]) - segmentation.origin, 0)
     values = segmentation.smoothed[tuple(slice(a, a + n) for a, n in zip(low, local.shape))]
     steps = int(np.ceil(DIM_CELL_MM / float(volume.spacing.min())))
-    clear = ~ndimage.binary_dilation(local > 0, iterations=steps) if (local > 0).any() else np.ones(local.shape, bool)
+    clear = ~dilate(local > 0, iterations=steps) if (local > 0).any() else np.ones(local.shape, bool)
     distance = np.linalg.norm(ras - sphere.centre, axis=-1)
     shell = (distance >= sphere.radius_mm + 1.0) & (distance <= reach)
     return bool((shell & clear & (values >= DIM_BODY_HU)).any())
@@ -540,7 +543,7 @@ class _ObjectShape:
         cells = self._cell_centres_ras()
         near_sphere = np.zeros(self.filled.shape, dtype=bool)
         for centre, reach in seeds:
-            near_sphere |= np.linalg.norm(cells - centre, axis=-1) <= reach
+            near_sphere |= self._ball(centre, reach)
         rest = self.filled & ~near_sphere
         depth = ndimage.distance_transform_edt(rest, sampling=self.cell)
         # The bone's core: at the largest opening that leaves a part far from the body big enough to be a bone. A
@@ -616,7 +619,7 @@ class _ObjectShape:
         if count == 0:
             return rods
         outside_bone, _ = ndimage.label(rest & ~bone)
-        to_body = np.unique(outside_bone[ndimage.binary_dilation(body) & (outside_bone > 0)])
+        to_body = np.unique(outside_bone[dilate(body) & (outside_bone > 0)])
         cavity = self.filled & ~self.mask & (away > ROD_FROM_MM)  # outside the bone kept (its own marrow is in it)
         for piece in range(1, count + 1):
             cells = pieces == piece
@@ -660,20 +663,29 @@ class _ObjectShape:
         thin, count = ndimage.label(rest & ~opened)
         if count == 0:
             return opened
-        touching_bone = np.unique(thin[ndimage.binary_dilation(opened) & (thin > 0)])
-        leading_to_body = np.unique(thin[ndimage.binary_dilation(near_sphere) & (thin > 0)])
+        touching_bone = np.unique(thin[dilate(opened) & (thin > 0)])
+        leading_to_body = np.unique(thin[dilate(near_sphere) & (thin > 0)])
         keep = np.setdiff1d(touching_bone, leading_to_body)
         return opened | np.isin(thin, keep)
 
     def body_in_box(self, cut):
         """Booleans over the segmentation's box: the object's voxels on the body's side of the cut (the cells of
         the object not in the bone's part, and the half-empty cells along their surface)."""
-        body = ndimage.binary_dilation(self.filled & ~cut.bone) & ~cut.bone
+        body = dilate(self.filled & ~cut.bone) & ~cut.bone
         cells = np.repeat(np.repeat(np.repeat(body, self.block[0], 0), self.block[1], 1), self.block[2], 2)
         box = tuple(slice(a, b) for a, b in zip(self.low, self.high))
         whole = np.zeros(self.segmentation.labels.shape, dtype=bool)
         whole[box] = (self.segmentation.labels[box] == self.label) & cells
         return whole
+
+    def _ball(self, centre, reach_mm):
+        """The cells whose centres lie within ``reach_mm`` of ``centre`` (3,) RAS: summed per axis, as the grid's
+        axes are orthogonal (a distance-preserving frame in mm), without the (I, J, K, 3) offsets."""
+        ras_to_ijk = np.linalg.inv(self._ijk_to_ras)
+        ijk = ras_to_ijk[:3, :3] @ centre + ras_to_ijk[:3, 3]
+        at = (ijk - self.segmentation.origin - self.low + 0.5) / self.block - 0.5  # in cells
+        squared = [((np.arange(n) - a) * c) ** 2 for n, a, c in zip(self.mask.shape, at, self.cell)]
+        return squared[0][:, None, None] + squared[1][None, :, None] + squared[2][None, None, :] <= reach_mm**2
 
     def _cell_centres_ras(self):
         grid = np.stack(np.meshgrid(*[np.arange(n) for n in self.mask.shape], indexing="ij"), axis=-1)

@@ -23,6 +23,7 @@ from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
+from .morphology import all_ahead, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
 
 logger = logging.getLogger(__name__)
 
@@ -297,7 +298,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             axis = fill_axis(bone, volume.spacing)
             in_slice = np.zeros((3, 3, 3), dtype=bool)
             in_slice[tuple(1 if a == axis else slice(None) for a in range(3))] = True
-            bright = (image >= level) & ndimage.binary_dilation(mask, iterations=2)
+            bright = (image >= level) & dilate(mask, iterations=2)
             inside = ndimage.binary_fill_holes(bright, structure=in_slice) & ~bright
         image[inside] = level + 100.0
         mask = mask | inside
@@ -306,14 +307,14 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # bright as the threshold) are the bone's too: wiped with the other objects, they would make a surface.
         # Only inside the bone (enclosed by it along the grid's lines) or at its edge: a dim bracket fixed into a bone
         # in air is above a surface level that low too, and it is no bone.
-        near = ndimage.binary_dilation(mask, iterations=2)
+        near = dilate(mask, iterations=2)
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
     # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC, nor their blurred
     # rim where they come within two voxels of the bone.
-    by_other = ndimage.binary_dilation(other, iterations=2) & ~mask if other.any() else None
-    wiped = ~ndimage.binary_dilation(mask, iterations=2)
+    by_other = dilate(other, iterations=2) & ~mask if other.any() else None
+    wiped = ~dilate(mask, iterations=2)
     if by_other is not None:
         wiped |= by_other
     image[wiped] = min(float(image.min()), level - 1000.0)
@@ -321,7 +322,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if len(vertices_ijk) == 0:
         raise ValueError("the bone has no surface at the threshold; check the threshold")
     if by_other is not None:  # the surface in a gap of a voxel or two to another object is not the bone's
-        between = ndimage.binary_dilation(by_other)[tuple(np.rint(vertices_ijk).astype(int).T)]
+        between = dilate(by_other)[tuple(np.rint(vertices_ijk).astype(int).T)]
         if between.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
@@ -398,10 +399,9 @@ def _joined_above(above, mask, others):
     """(I, J, K) booleans: the ``above`` voxels joined to ``mask`` (the bone) other than those of ``others`` (other
     objects) and the two voxels round them (their blurred rim)."""
     if others.any():
-        above = above & ~ndimage.binary_dilation(others, iterations=2)
+        above = above & ~dilate(others, iterations=2)
     labels, _ = ndimage.label(above)
-    joined = np.unique(labels[mask & above])
-    return np.isin(labels, joined[joined > 0])
+    return labelled(labels, np.unique(labels[mask & above]))
 
 
 def _near_padding(padding, vertices, spacing):
@@ -463,22 +463,36 @@ def _enclosed_along_lines(mask, on_edge, spacing, padding=None):
     for axis in range(3):
         shape = [1, 1, 1]
         shape[axis] = mask.shape[axis]
-        index = np.arange(mask.shape[axis], dtype=np.int32).reshape(shape)
-        far = 10 * mask.shape[axis]
-        # The index of the nearest bone voxel before and after each voxel along the line (far off when none).
-        before = np.maximum.accumulate(np.where(mask, index, -far), axis=axis)
-        after = np.flip(np.minimum.accumulate(np.flip(np.where(mask, index, 2 * far), axis=axis), axis=axis), axis=axis)
-        reach = MAX_CAVITY_MM / spacing[axis]
-        narrow += after - before <= reach
-        near = (index - before <= reach) | (after - index <= reach)
-        edge_before = np.full(mask.shape, on_edge[axis][0])
-        edge_after = np.full(mask.shape, on_edge[axis][1])
+        index = np.arange(mask.shape[axis]).reshape(shape)
+        reach = int(MAX_CAVITY_MM / spacing[axis])  # voxels
+        narrow += _between_near(mask, axis, reach)
+        near = any_behind(mask, axis, reach + 1) | any_ahead(mask, axis, reach + 1)
+        # Bone somewhere before (at or before the voxel along its line) and after it.
+        first = np.where(mask.any(axis=axis), np.argmax(mask, axis=axis), mask.shape[axis])
+        last = np.where(mask.any(axis=axis), mask.shape[axis] - 1 - np.argmax(np.flip(mask, axis), axis=axis), -1)
+        before = index >= np.expand_dims(first, axis)
+        after = index <= np.expand_dims(last, axis)
+        edge_before, edge_after = on_edge[axis]
         if padding is not None and axis < 2:
-            wall = np.broadcast_to(padding[:, :, None], mask.shape)
-            edge_before = edge_before | np.logical_or.accumulate(wall, axis=axis)
-            edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(wall, axis=axis), axis=axis), axis=axis)
-        closed &= near | ((edge_before | (before >= 0)) & (edge_after | (after < mask.shape[axis])))
+            edge_before = edge_before | np.logical_or.accumulate(padding, axis=axis)[:, :, None]
+            edge_after = (
+                edge_after | np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
+            )
+        closed &= near | ((edge_before | before) & (edge_after | after))
     return ~mask & closed & (narrow >= 2)
+
+
+def _between_near(mask, axis, reach):
+    """(I, J, K) booleans: the voxels of ``mask`` and those between two of its voxels at most ``reach`` apart along
+    ``axis`` (a closing by a segment of ``reach`` voxels: every such segment through the voxel meets the mask)."""
+    padded_shape = list(mask.shape)
+    padded_shape[axis] += reach  # segments may start before the volume (there is no mask)
+    padded = np.zeros(padded_shape, dtype=bool)
+    inside = tuple(slice(reach, None) if a == axis else slice(None) for a in range(3))
+    padded[inside] = mask
+    meets = any_ahead(padded, axis, reach)  # the segment starting at each voxel meets the mask
+    every = np.flip(all_ahead(np.flip(meets, axis), axis, reach), axis)  # ... and those starting reach - 1 before
+    return every[inside]
 
 
 #: The dark regions round a thin cortex are told apart once opened by a cube about this wide (mm).
@@ -509,13 +523,13 @@ def _enclosed(image, levels, walls, low, high, volume):
     inside = np.zeros(image.shape, dtype=bool)
     size = max(1, int(round(OPENING_MM / float(volume.spacing.max())))) | 1  # odd, at least 1
     for level in levels:
-        dark = ((image < level) & ~walls).view(np.uint8)
+        dark = (image < level) & ~walls
         # An opening by a cube, axis by axis (min then max filters are separable, a cube's erosion is not cheap).
-        opened = ndimage.maximum_filter(ndimage.minimum_filter(dark, size=size), size=size).view(bool)
-        labels, _ = ndimage.label(opened)
+        opened = open_by_cube(dark, size)
+        labels, count = ndimage.label(opened)
         outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
-        inside |= (labels > 0) & ~np.isin(labels, outside)
-    return ndimage.binary_dilation(inside, iterations=2, mask=(image < levels[0]) & ~walls)
+        inside |= labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
+    return dilate(inside, 2, within=(image < levels[0]) & ~walls)
 
 
 def _next_to_body(volume, segmentation, vertices_ijk):
@@ -573,18 +587,18 @@ def _surface_level(image, mask, threshold, level, spacing):
         logger.info("voxels of %.1f mm do not resolve the cortex: bone surface at the threshold", spacing.max())
         return threshold
     # The cortex's brightness, read just beneath the blurred edge (1 to 4 voxels deep), metal left out.
-    rim = ndimage.binary_erosion(mask, iterations=1) & ~ndimage.binary_erosion(mask, iterations=4)
+    under_edge = erode(mask)
+    rim = under_edge & ~erode(under_edge, 3)
     metal = image >= METAL_HU
     if metal.any():  # a pin or screw through the bone: its blurred edge, brighter than cortex, left out too
         reach = int(np.ceil(METAL_EDGE_MM / float(spacing.min())))
-        rim &= ~ndimage.binary_dilation(metal, iterations=reach)
+        rim &= ~dilate(metal, iterations=reach)
     rim_values = image[rim]
     if rim_values.size == 0:
         return threshold
     cortex = float(np.percentile(rim_values, 95))
-    outside = float(
-        np.median(image[ndimage.binary_dilation(mask, iterations=4) & ~ndimage.binary_dilation(mask, iterations=2)])
-    )
+    beyond_blur = dilate(mask, 2)
+    outside = float(np.median(image[dilate(beyond_blur, 2) & ~beyond_blur]))
     logger.info(
         "bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2, cortex, outside
     )

@@ -56,9 +56,10 @@ def block_means(image, block):
     trimmed = image[: shape[0] * block[0], : shape[1] * block[1], : shape[2] * block[2]]
     if (block == 1).all():
         return np.asarray(trimmed, dtype=np.float32)
-    summed = trimmed.reshape(shape[0], block[0], shape[1], block[1], shape[2], block[2]).sum(
-        axis=(1, 3, 5), dtype=np.float32
-    )
+    # Summed offset by offset (a strided view each): a reduction over the reshaped blocks' axes is 3-4 times slower.
+    summed = np.zeros(shape, dtype=np.float32)
+    for offset in np.ndindex(*block):
+        summed += trimmed[tuple(slice(o, None, b) for o, b in zip(offset, block))]
     return summed / np.float32(np.prod(block))
 
 

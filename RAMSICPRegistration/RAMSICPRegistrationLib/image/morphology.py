@@ -1,0 +1,121 @@
+"""Binary morphology on (I, J, K) boolean volumes, by shifted copies of the volume.
+
+The same results as ``scipy.ndimage.binary_dilation`` / ``binary_erosion`` with their default structure (the
+6-connected cross, ``iterations`` times: a ball in the city-block metric) and as ``minimum_filter`` /
+``maximum_filter`` over a cube, but made of whole-array ``&=`` and ``|=`` on views of the volume, which NumPy runs
+at memory speed: 5 to 12 times faster than SciPy's voxel-by-voxel loops on the bone's box of a C-arm CT
+(6 million voxels: 5-10 ms an iteration against 35-115 ms). The image side runs a dozen of them per CT.
+"""
+
+import numpy as np
+
+
+def dilate(mask, iterations=1, within=None):
+    """``mask`` grown by one voxel along the grid's axes, ``iterations`` times; with ``within`` (booleans of the same
+    shape), only into its voxels (``binary_dilation``'s ``mask=``). Outside the volume counts as False."""
+    grown = np.array(mask, dtype=bool)
+    for _ in range(iterations):
+        before = grown.copy()
+        for axis in range(3):
+            low, high = _halves(grown.shape, axis, 1)
+            grown[low] |= before[high]
+            grown[high] |= before[low]
+        if within is not None:
+            grown &= within
+            grown |= before  # what the mask held stays, as in binary_dilation
+    return grown
+
+
+def erode(mask, iterations=1):
+    """``mask`` shrunk by one voxel along the grid's axes, ``iterations`` times; outside the volume counts as False
+    (``binary_erosion``'s ``border_value=0``: the voxels on the volume's sides go first)."""
+    shrunk = np.array(mask, dtype=bool)
+    for _ in range(iterations):
+        before = shrunk.copy()
+        for axis in range(3):
+            low, high = _halves(shrunk.shape, axis, 1)
+            shrunk[low] &= before[high]
+            shrunk[high] &= before[low]
+            shrunk[_side(axis, 0)] = False
+            shrunk[_side(axis, -1)] = False
+    return shrunk
+
+
+def open_by_cube(mask, size):
+    """``mask`` opened by a cube ``size`` voxels wide (odd): kept where a whole cube inside it covers the voxel.
+    Each axis's window runs past the volume's sides onto the voxels there repeated (``minimum_filter`` then
+    ``maximum_filter`` of ``size``, mode 'reflect')."""
+    return _box_filter(_box_filter(np.array(mask, dtype=bool), size, np.logical_and), size, np.logical_or)
+
+
+def dilate_by_cube(mask, size=3):
+    """``mask`` grown by a cube ``size`` voxels wide (odd): by one voxel in all 26 directions for 3
+    (``binary_dilation`` with a 3 x 3 x 3 structure of ones)."""
+    return _box_filter(np.array(mask, dtype=bool), size, np.logical_or)
+
+
+def _box_filter(mask, size, combine):
+    """The ``combine`` (and: minimum, or: maximum) of each voxel's window of ``size`` along each axis in turn, the
+    window cut at the volume's sides (which repeats their voxels: a no-op for a minimum or a maximum)."""
+    half = size // 2
+    for axis in range(3):
+        before = mask.copy()
+        for step in range(1, min(half, mask.shape[axis] - 1) + 1):
+            low, high = _halves(mask.shape, axis, step)
+            combine(mask[low], before[high], out=mask[low])
+            combine(mask[high], before[low], out=mask[high])
+    return mask
+
+
+def labelled(labels, chosen):
+    """Booleans of ``labels``'s shape: the voxels whose label (from ``ndimage.label``) is one of ``chosen``; 0 (the
+    background) never. A look-up table: ``np.isin`` sorts, twice as slow on a bone's box."""
+    table = np.zeros(int(labels.max()) + 1, dtype=bool)
+    table[np.asarray(chosen, dtype=np.int64)] = True
+    table[0] = False
+    return table[labels]
+
+
+def _halves(shape, axis, step):
+    """Index tuples of the volume without its last ``step`` slices along ``axis`` and without its first ``step``."""
+    low, high = [slice(None)] * 3, [slice(None)] * 3
+    low[axis], high[axis] = slice(0, shape[axis] - step), slice(step, shape[axis])
+    return tuple(low), tuple(high)
+
+
+def _side(axis, index):
+    side = [slice(None)] * 3
+    side[axis] = index
+    return tuple(side)
+
+
+def any_ahead(mask, axis, length):
+    """(I, J, K) booleans: whether any of the ``length`` voxels from each voxel on along ``axis`` (itself included,
+    beyond the volume's end none) is in ``mask``. Windows of doubling length, ``log2(length)`` passes."""
+    return _ahead(mask, axis, length, np.logical_or)
+
+
+def all_ahead(mask, axis, length):
+    """(I, J, K) booleans: whether all of the ``length`` voxels from each voxel on along ``axis`` that lie in the
+    volume are in ``mask``."""
+    return _ahead(mask, axis, length, np.logical_and)
+
+
+def any_behind(mask, axis, length):
+    """``any_ahead`` looking back along ``axis``: the voxel itself and the ``length - 1`` before it."""
+    return np.flip(any_ahead(np.flip(mask, axis), axis, length), axis)
+
+
+def _ahead(mask, axis, length, combine):
+    window = np.array(mask, dtype=bool)
+    n = window.shape[axis]
+    covered = 1  # the window's length so far
+    while 2 * covered <= length and covered < n:
+        low, high = _halves(window.shape, axis, covered)
+        combine(window[low], window[high], out=window[low])
+        covered *= 2
+    rest = min(length, n) - covered  # the window of ``length`` is two of ``covered`` overlapping
+    if rest > 0:
+        low, high = _halves(window.shape, axis, rest)
+        combine(window[low], window[high], out=window[low])
+    return window

@@ -1,0 +1,78 @@
+"""The shifted-copy morphology gives exactly what SciPy's voxel loops give (and what a brute-force window gives),
+on random masks of every small shape, sides and thin dimensions included."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from RAMSICPRegistrationLib.image.morphology import (
+    all_ahead,
+    any_ahead,
+    any_behind,
+    dilate,
+    dilate_by_cube,
+    erode,
+    labelled,
+    open_by_cube,
+)
+
+
+def random_masks(seed, count=60):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        shape = tuple(int(n) for n in rng.integers(1, 12, size=3))
+        blur = rng.uniform(0.0, 2.0)
+        yield rng, ndimage.gaussian_filter(rng.normal(size=shape), blur) > rng.uniform(-0.3, 0.3)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_dilate_and_erode_match_scipy_cross(seed):
+    for rng, mask in random_masks(seed):
+        iterations = int(rng.integers(1, 5))
+        within = rng.random(mask.shape) > 0.3
+        np.testing.assert_array_equal(dilate(mask, iterations), ndimage.binary_dilation(mask, iterations=iterations))
+        np.testing.assert_array_equal(erode(mask, iterations), ndimage.binary_erosion(mask, iterations=iterations))
+        np.testing.assert_array_equal(
+            dilate(mask, iterations, within=within),
+            ndimage.binary_dilation(mask, iterations=iterations, mask=within),
+        )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cube_filters_match_scipy(seed):
+    for rng, mask in random_masks(seed):
+        size = int(rng.choice([1, 3, 5, 7]))
+        as_bytes = mask.view(np.uint8)
+        opened = ndimage.maximum_filter(ndimage.minimum_filter(as_bytes, size=size), size=size).view(bool)
+        np.testing.assert_array_equal(open_by_cube(mask, size), opened)
+        cube = np.ones((3, 3, 3), dtype=bool)
+        np.testing.assert_array_equal(dilate_by_cube(mask), ndimage.binary_dilation(mask, structure=cube))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_windows_along_an_axis_match_brute_force(seed):
+    for rng, mask in random_masks(seed):
+        axis, length = int(rng.integers(3)), int(rng.integers(1, 20))
+        moved = np.moveaxis(mask, axis, 0)
+        n = len(moved)
+        ahead_any = np.stack([moved[x : x + length].any(axis=0) for x in range(n)])
+        ahead_all = np.stack([moved[x : x + length].all(axis=0) for x in range(n)])
+        behind_any = np.stack([moved[max(0, x - length + 1) : x + 1].any(axis=0) for x in range(n)])
+        np.testing.assert_array_equal(np.moveaxis(any_ahead(mask, axis, length), axis, 0), ahead_any)
+        np.testing.assert_array_equal(np.moveaxis(all_ahead(mask, axis, length), axis, 0), ahead_all)
+        np.testing.assert_array_equal(np.moveaxis(any_behind(mask, axis, length), axis, 0), behind_any)
+
+
+def test_the_input_is_left_alone():
+    mask = np.zeros((5, 5, 5), dtype=bool)
+    mask[2, 2, 2] = True
+    for result in (dilate(mask, 2), erode(mask), open_by_cube(mask, 3), any_ahead(mask, 0, 3), dilate_by_cube(mask)):
+        assert result is not mask
+    assert mask.sum() == 1
+    assert dilate(mask, 2).sum() == 25  # the city-block ball of radius 2: 1 + 6 + 18 voxels
+
+
+def test_labelled_picks_the_chosen_labels_never_the_background():
+    labels = np.array([[[0, 1, 2, 3, 3, 0]]])
+    np.testing.assert_array_equal(labelled(labels, [0, 3]), [[[False, False, False, True, True, False]]])
+    np.testing.assert_array_equal(labelled(labels, []), np.zeros(labels.shape, dtype=bool))
