@@ -9,6 +9,8 @@ from RAMSICPRegistrationLib.image.morphology import (
     all_ahead,
     any_ahead,
     any_behind,
+    box_max,
+    box_sum,
     dilate,
     dilate_by_cube,
     erode,
@@ -47,6 +49,16 @@ def test_cube_filters_match_scipy(seed):
         np.testing.assert_array_equal(open_by_cube(mask, size), opened)
         cube = np.ones((3, 3, 3), dtype=bool)
         np.testing.assert_array_equal(dilate_by_cube(mask), ndimage.binary_dilation(mask, structure=cube))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_box_sums_and_maxima_match_scipy(seed):
+    for rng, mask in random_masks(seed):
+        counts = rng.integers(0, 50, size=mask.shape).astype(np.float32) * mask
+        sums = ndimage.uniform_filter(counts.astype(np.float64), size=3, mode="constant") * 27.0
+        np.testing.assert_allclose(box_sum(counts), sums, atol=1e-9)
+        np.testing.assert_array_equal(box_sum(counts), np.rint(sums))  # whole counts, exactly
+        np.testing.assert_array_equal(box_max(counts), ndimage.maximum_filter(counts, size=3, mode="constant"))
 
 
 @pytest.mark.parametrize("seed", range(3))

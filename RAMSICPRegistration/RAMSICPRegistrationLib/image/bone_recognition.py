@@ -25,13 +25,14 @@ Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised 
 
 import logging
 from dataclasses import dataclass
-from functools import cached_property
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .morphology import dilate, dilate_by_cube
+from .parallel import in_parallel
 from .sphere_candidates import block_means
 
 logger = logging.getLogger(__name__)
@@ -181,26 +182,34 @@ def _recognise(volume, segmentation, held, census, reached=()):
     voxel_mm3 = float(np.prod(volume.spacing))
     sizes, slices = census.sizes, census.slices
     objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]
+    weighed = [label for label in objects if sizes[label] * voxel_mm3 >= MIN_BONE_MM3 / 4.0]
+    unmeasured = [label for label in weighed if label not in census.shapes]
+    shapes = in_parallel(
+        *[partial(_ObjectShape, volume, segmentation, label, slices[label - 1]) for label in unmeasured]
+    )
+    census.shapes.update(zip(unmeasured, shapes))
+    # The solid parts of the objects that may hold a bone and a body, measured at once too.
+    in_parallel(
+        *[census.shapes[label].solid_parts for label in weighed if _may_hold_a_body(census.shapes[label], held[label])]
+    )
     verdicts, found = [], []
     for label in objects:
-        if sizes[label] * voxel_mm3 < MIN_BONE_MM3 / 4.0:  # even filled it cannot be a bone
+        if label not in weighed:  # even filled it cannot be a bone
             verdicts.append(ObjectVerdict(label, sizes[label] * voxel_mm3, 0.0, None, len(held[label]), "too small"))
             continue
-        if label not in census.shapes:
-            census.shapes[label] = _ObjectShape(volume, segmentation, label, slices[label - 1])
         shape = census.shapes[label]
         if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
             verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
         elif held[label]:
             # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too, unless with them
             # no bone is left (a solid bracket resting on the bone: its core's reach takes in the bone's).
-            solid = shape.solid_parts
+            solid = shape.solid_parts()
             verdict, bone = shape.cut_off_body(held[label] + solid, no_bone_on_body=label in reached)
             if solid and bone is None:
                 verdict, bone = shape.cut_off_body(held[label], no_bone_on_body=label in reached)
         else:
             verdict, bone = shape.verdict(0), None
-            solid = shape.solid_parts if verdict.verdict.startswith("bone") else []
+            solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
             if solid:  # a body whose spheres are out of view or sunk into its frame, joined to the bone
                 verdict, bone = shape.cut_off_body(solid)
         verdicts.append(verdict)
@@ -453,6 +462,7 @@ class _ObjectShape:
         padding = self.max_hu < PADDING_HU
         self.filled = _filled(self.mask, open_sides, padding)
         self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
+        self._solid_parts = None
 
     def verdict(self, spheres, filled=None, depth=None):
         """ObjectVerdict of the object (or of a part: its ``filled`` cells and their ``depth``)."""
@@ -480,11 +490,16 @@ class _ObjectShape:
             return None
         return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
 
-    @cached_property
     def solid_parts(self):
         """[(point (3,) RAS, reach mm)]: where the object is a solid part (a frame, a bracket: no cortex) joined to a
         part with a cortex, [] when it is not: the body's seeds when no marker sphere says where it is (its spheres
-        out of the field of view or sunk into its frame).
+        out of the field of view or sunk into its frame). Measured once (``_find_solid_parts``)."""
+        if self._solid_parts is None:
+            self._solid_parts = self._find_solid_parts()
+        return self._solid_parts
+
+    def _find_solid_parts(self):
+        """``solid_parts``.
 
         Opened by balls of shrinking radius, the object falls apart at its necks; the first opening that leaves at
         least two cores of MIN_CORE_MM3, one of them (opened back) with a cortex and another with a rim no brighter
@@ -503,10 +518,7 @@ class _ObjectShape:
             big = [core for core in np.argsort(-sizes)[:MAX_CORES] if sizes[core] * cell_mm3 >= MIN_CORE_MM3]
             if len(big) < 2:
                 continue
-            contrasts = []
-            for core in big:
-                part = self.filled & self._within(cores == core, opening)
-                contrasts.append(self._cortex(part, self._depth_of(part)))
+            contrasts = in_parallel(*[partial(self._core_contrast, cores == core, opening) for core in big])
             solid = [core for core, c in zip(big, contrasts) if c is not None and c < SOLID_CONTRAST_HU]
             if not solid or not any(c is not None and c >= CORTEX_CONTRAST_HU for c in contrasts):
                 continue
@@ -520,6 +532,11 @@ class _ObjectShape:
             )
             return seeds
         return []
+
+    def _core_contrast(self, core, opening):
+        """The cortex contrast (``_cortex``) of the object's part that a ``core`` opened by ``opening`` mm holds."""
+        part = self.filled & self._within(core, opening)
+        return self._cortex(part, self._depth_of(part))
 
     def _bone_like(self, cells):
         """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU)."""
@@ -727,6 +744,14 @@ def _filled(mask, open_sides=(), padding=None):
         outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
         filled |= (holes > 0) & ~np.isin(holes, outside)
     return filled
+
+
+def _may_hold_a_body(shape, seeds):
+    """True when the recognition will ask for the object's solid parts: it holds the body's ``seeds`` and is large
+    enough for a bone besides, or it holds none and looks like bone."""
+    if seeds:
+        return shape.filled.sum() * np.prod(shape.cell) >= 2.0 * MIN_BONE_MM3
+    return shape.verdict(0).verdict.startswith("bone")
 
 
 def _reaches(points, centres, distances):

@@ -14,6 +14,7 @@ a specimen is mostly air.
 
 import logging
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 from scipy import ndimage
@@ -24,6 +25,7 @@ from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
 from .morphology import all_ahead, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
+from .parallel import cores, in_parallel
 
 logger = logging.getLogger(__name__)
 
@@ -177,7 +179,7 @@ def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
     box = region_of_interest(volume)
     smoothed = volume.voxels[box].astype(np.float32)
     if denoise_sigma_mm > 0:
-        smoothed = ndimage.gaussian_filter(smoothed, denoise_sigma_mm / volume.spacing, truncate=3.0)
+        smoothed = _denoised(smoothed, denoise_sigma_mm / volume.spacing)
     if threshold_hu == "auto":
         body = smoothed[smoothed > -200.0]
         if body.size == 0:
@@ -209,6 +211,26 @@ def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
         box=box,
         volume_shape=tuple(volume.voxels.shape),
     )
+
+
+#: The Gaussian's kernel reaches this many sigmas (SciPy's ``truncate``).
+DENOISE_TRUNCATE = 3.0
+
+
+def _denoised(image, sigma):
+    """(I, J, K) float32: ``image`` blurred by a Gaussian of ``sigma`` (3,) voxels, in slabs across the first axis
+    that overlap by the kernel's reach, one per core: the same values as one ``gaussian_filter`` over the whole."""
+    reach = int(DENOISE_TRUNCATE * float(sigma[0]) + 0.5)  # gaussian_filter's kernel radius along the axis
+    cuts = np.linspace(0, len(image), min(cores(), max(1, len(image) // (4 * reach + 4))) + 1).astype(int)
+    denoised = np.empty(image.shape, dtype=np.float32)
+
+    def slab(start, stop):
+        low, high = max(start - reach, 0), min(stop + reach, len(image))
+        blurred = ndimage.gaussian_filter(image[low:high], sigma, truncate=DENOISE_TRUNCATE)
+        denoised[start:stop] = blurred[start - low : stop - low]
+
+    in_parallel(*[partial(slab, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])])
+    return denoised
 
 
 def region_of_interest(volume):
@@ -418,19 +440,19 @@ INNER_WALL_MM = 1.5
 def _facing_inward(image, vertices, mask, spacing):
     """(M,) booleans: iso-surface vertices (indices in ``image``) whose dimmer side, INNER_WALL_MM away along the
     gradient, lies in the bone's ``mask`` (its voxels above the threshold and its filled inside)."""
-    gradient = np.stack(
-        [
-            ndimage.map_coordinates(image, (vertices + step).T, order=1, mode="nearest")
-            - ndimage.map_coordinates(image, (vertices - step).T, order=1, mode="nearest")
-            for step in np.eye(3)
-        ],
-        axis=1,
-    ) / (2.0 * spacing)
+    gradient = np.stack(in_parallel(*[partial(_difference_along, image, vertices, step) for step in np.eye(3)]), axis=1)
+    gradient /= 2.0 * spacing
     down = -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)  # per mm, grid axes
     reach = max(INNER_WALL_MM, float(spacing.max()))
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
+
+
+def _difference_along(image, vertices, step):
+    """(M,) the image's (trilinear) value a ``step`` (3,) voxels ahead of each vertex (M, 3) less that behind it."""
+    ahead = ndimage.map_coordinates(image, (vertices + step).T, order=1, mode="nearest")
+    return ahead - ndimage.map_coordinates(image, (vertices - step).T, order=1, mode="nearest")
 
 
 def _on_ct_edge(segmentation, low, high, volume):
@@ -458,28 +480,34 @@ def _enclosed_along_lines(mask, on_edge, spacing, padding=None):
     both sides; a pit in a bone's surface narrower than MAX_CAVITY_MM is taken for its inside too (its surface is
     lost to the IPC, no false point is added).
     """
-    narrow = np.zeros(mask.shape, dtype=np.uint8)  # along how many axes the bone is on both sides, near
-    closed = np.ones(mask.shape, dtype=bool)  # ... and along every other one near on a side, or closed on both
-    for axis in range(3):
-        shape = [1, 1, 1]
-        shape[axis] = mask.shape[axis]
-        index = np.arange(mask.shape[axis]).reshape(shape)
-        reach = int(MAX_CAVITY_MM / spacing[axis])  # voxels
-        narrow += _between_near(mask, axis, reach)
-        near = any_behind(mask, axis, reach + 1) | any_ahead(mask, axis, reach + 1)
-        # Bone somewhere before (at or before the voxel along its line) and after it.
-        first = np.where(mask.any(axis=axis), np.argmax(mask, axis=axis), mask.shape[axis])
-        last = np.where(mask.any(axis=axis), mask.shape[axis] - 1 - np.argmax(np.flip(mask, axis), axis=axis), -1)
-        before = index >= np.expand_dims(first, axis)
-        after = index <= np.expand_dims(last, axis)
-        edge_before, edge_after = on_edge[axis]
-        if padding is not None and axis < 2:
-            edge_before = edge_before | np.logical_or.accumulate(padding, axis=axis)[:, :, None]
-            edge_after = (
-                edge_after | np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
-            )
-        closed &= near | ((edge_before | before) & (edge_after | after))
+    along = in_parallel(
+        *[partial(_enclosed_along_axis, mask, axis, on_edge[axis], spacing, padding) for axis in range(3)]
+    )
+    narrow = sum(both.view(np.uint8) for both, _ in along)  # along how many axes the bone is on both sides, near
+    closed = along[0][1] & along[1][1] & along[2][1]  # ... and along every other one near on a side, or closed on both
     return ~mask & closed & (narrow >= 2)
+
+
+def _enclosed_along_axis(mask, axis, on_edge, spacing, padding):
+    """``_enclosed_along_lines`` along one ``axis``: (I, J, K) booleans of the voxels with the bone on both sides
+    within MAX_CAVITY_MM in all, and of those with the bone on a side within MAX_CAVITY_MM or the bone or the CT's
+    edge (``on_edge``: the box's low and high sides on the CT's, ``padding``) on both sides."""
+    shape = [1, 1, 1]
+    shape[axis] = mask.shape[axis]
+    index = np.arange(mask.shape[axis]).reshape(shape)
+    reach = int(MAX_CAVITY_MM / spacing[axis])  # voxels
+    both = _between_near(mask, axis, reach)
+    near = any_behind(mask, axis, reach + 1) | any_ahead(mask, axis, reach + 1)
+    # Bone somewhere before (at or before the voxel along its line) and after it.
+    first = np.where(mask.any(axis=axis), np.argmax(mask, axis=axis), mask.shape[axis])
+    last = np.where(mask.any(axis=axis), mask.shape[axis] - 1 - np.argmax(np.flip(mask, axis), axis=axis), -1)
+    before = index >= np.expand_dims(first, axis)
+    after = index <= np.expand_dims(last, axis)
+    edge_before, edge_after = on_edge
+    if padding is not None and axis < 2:
+        edge_before = edge_before | np.logical_or.accumulate(padding, axis=axis)[:, :, None]
+        edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
+    return both, near | ((edge_before | before) & (edge_after | after))
 
 
 def _between_near(mask, axis, reach):
@@ -520,16 +548,18 @@ def _enclosed(image, levels, walls, low, high, volume):
     ]
     if not open_sides:
         return None
-    inside = np.zeros(image.shape, dtype=bool)
     size = max(1, int(round(OPENING_MM / float(volume.spacing.max())))) | 1  # odd, at least 1
-    for level in levels:
-        dark = (image < level) & ~walls
-        # An opening by a cube, axis by axis (min then max filters are separable, a cube's erosion is not cheap).
-        opened = open_by_cube(dark, size)
-        labels, count = ndimage.label(opened)
-        outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
-        inside |= labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
-    return dilate(inside, 2, within=(image < levels[0]) & ~walls)
+    inside = in_parallel(*[partial(_enclosed_below, image, level, walls, open_sides, size) for level in levels])
+    return dilate(np.logical_or.reduce(inside), 2, within=(image < levels[0]) & ~walls)
+
+
+def _enclosed_below(image, level, walls, open_sides, size):
+    """``_enclosed`` at one ``level``: the regions darker than it, opened by a cube ``size`` voxels wide, that reach
+    none of the box's ``open_sides``."""
+    opened = open_by_cube((image < level) & ~walls, size)
+    labels, count = ndimage.label(opened)
+    outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
+    return labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
 
 
 def _next_to_body(volume, segmentation, vertices_ijk):
