@@ -96,15 +96,19 @@ def test_the_ipc_on_ct_that_defeated_it(seed):
 #: bracket (3044: 0.7 % of the IPC on the bone, the rest on the body); a dim bracket (170 HU, under the threshold)
 #: inserted into a long bone, its hole opening the marrow (3000: 55 %, the marrow's wall in the IPC); a bright ring
 #: frame joined to a long bone by a bracket just above the threshold, which the spheres' own seeds did not reach
-#: (6082: 55 %, 19,474 IPC points on the frame).
-FULL_PROFILE_HARD = {1060: 0.95, 3044: 0.99, 3000: 0.99, 6082: 0.99}
+#: (6082: 55 %, 19,474 IPC points on the frame); a metal star frame (2,400 HU) on a bracket of 1,470 HU in a fibula,
+#: whose side of the cut looked like bone (a bright rim round the bracket's dimmer core: 9171, 35 %, 7,345 points
+#: on the body); dim posts and frame under bright spheres, their start lost in the spheres' blurred rim, so that the
+#: metal bracket (2,380 HU) stayed on the tibia and set its surface level (9199: 0.8 %).
+FULL_PROFILE_HARD = {1060: 0.95, 3044: 0.99, 3000: 0.99, 6082: 0.99, 9171: 0.99, 9199: 0.99}
 
 
 @pytest.mark.parametrize("seed", sorted(FULL_PROFILE_HARD))
 def test_the_ipc_on_full_profile_ct_that_defeated_it(seed):
     volume, truth = make_family_ct(seed, "full")
     _, score = run(volume, truth)
-    assert not score.refused and score.found == score.visible and score.coverage > 0.8
+    assert not score.refused and score.found == score.visible
+    assert score.coverage > (0.75 if seed == 9171 else 0.8)  # 9171: a short fibula, 5.7 mm round the bracket left out
     assert score.ipc_on_bone >= FULL_PROFILE_HARD[seed] * score.ipc_points
     assert score.ipc_on_body <= 0.02 * score.ipc_points
 

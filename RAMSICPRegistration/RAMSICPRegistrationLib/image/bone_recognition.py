@@ -333,7 +333,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     # already, and its cells would start the dim parts in the soft tissue round the bone.)
     if own:
         own_cells = _block_max(np.isin(segmentation.labels[box], own), block)
-        start |= dilate(own_cells, iterations=2) & posts
+        start |= dilate_by_cube(own_cells, 5) & posts  # two cells out, past the rim the bright cells leave out
     linked = np.unique(regions[start & dim])
     sizes = np.bincount(regions.ravel())
     cell_mm3 = float(np.prod(volume.spacing * block))
@@ -481,11 +481,17 @@ class _ObjectShape:
             verdict = "bone without a cortex"
         return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict)
 
-    def _cortex(self, filled, depth):
+    def _cortex(self, filled, depth, round_the_inside=False):
+        """The rim's brightness (HU, 75th percentile of the cells' maxima) less the inside's (median of the deepest
+        cells' means), None when it has no rim or no inside; ``round_the_inside``: only the rim that surrounds the
+        inside (within its depth and a cell), as a cortex surrounds its marrow, not that of a brighter part joined to
+        a dimmer thick one (a metal frame on a bracket)."""
         rim = filled & (depth <= max(self.cell.max(), RIM_MM))
         if (rim & ~self.at_edge).any():
             rim &= ~self.at_edge
         inside = filled & (depth >= max(0.6 * float(depth.max()), self.cell.max() * 1.5))
+        if round_the_inside and inside.any():
+            rim &= self._within(inside, float(depth.max()) + float(self.cell.max()))
         if not rim.any() or not inside.any():
             return None
         return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
@@ -539,10 +545,11 @@ class _ObjectShape:
         return self._cortex(part, self._depth_of(part))
 
     def _bone_like(self, cells):
-        """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU)."""
+        """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU) round its
+        inside."""
         if cells.sum() * np.prod(self.cell) < MIN_BONE_MM3:
             return False
-        contrast = self._cortex(cells, self._depth_of(cells))
+        contrast = self._cortex(cells, self._depth_of(cells), round_the_inside=True)
         return contrast is not None and contrast >= CORTEX_CONTRAST_HU
 
     def _solid(self, cells):
