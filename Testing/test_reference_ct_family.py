@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from RAMSICPRegistrationLib.commands import main
-from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+from RAMSICPRegistrationLib.image.ct_pipeline import NoBoneSurface, process_ct
 from RAMSICPRegistrationLib.image.volume_io import CTVolume, save_nrrd
+from RAMSICPRegistrationLib.io.marker_files import read_markers
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.ct_painting import ReferenceBodyModel
 from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
@@ -29,6 +30,8 @@ def run(volume, truth):
     """(ImageSideResult or None, FamilyScore) of the image side on a family CT."""
     try:
         image = process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
+    except NoBoneSurface as error:  # no IPC; the marker spheres found are given all the same
+        return None, score_image_side(volume, truth, None, str(error), error.usable)
     except ValueError as error:
         return None, score_image_side(volume, truth, None, str(error))
     return image, score_image_side(volume, truth, image)
@@ -162,14 +165,28 @@ def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     voxels = volume.voxels.copy()
     shaft = np.hypot(ras[:, 0], ras[:, 1]) < SHAFT_RADIUS_MM + SOFT_TISSUE_MM + 2.0
     voxels[tuple(grid[shaft].T)] = -1000
-    with pytest.raises(ValueError, match="no object in the CT's field of view is plausibly bone") as refusal:
+    with pytest.raises(NoBoneSurface, match="no object in the CT's field of view is plausibly bone") as refusal:
         process_ct(CTVolume(voxels, volume.ijk_to_ras), tool_markers=tool_marker_geometry())
     assert "reference body" in str(refusal.value) and "holds" in str(refusal.value)
-    # The command line says it in one line and exits 2, writing no IPC.
+    # The marker spheres were found all the same: the coarse registration can use them.
+    usable = refusal.value.usable
+    assert sorted(sphere.number for sphere in usable) == [1, 2, 3, 4]
+    errors = [np.linalg.norm(sphere.centre - truth.marker_centres[sphere.number - 1]) for sphere in usable]
+    assert max(errors) < 0.05
+    # The command line says it in one line and exits 2, writing no IPC; the marker centres, when asked for.
     save_nrrd(tmp_path / "ct.nrrd", CTVolume(voxels, volume.ijk_to_ras))
     assert main(["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp")]) == 2
     error = capsys.readouterr().err.strip()
     assert "no object in the CT's field of view is plausibly bone" in error and "\n" not in error
+    assert not (tmp_path / "ipc.vtp").exists()
+    markers = tmp_path / "markers.mrk.json"
+    assert main(["ipc", str(tmp_path / "ct.nrrd"), "--out", str(tmp_path / "ipc.vtp"), "--markers", str(markers)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "plausibly bone" in error and f"(4 of 4 usable) are in {markers}" in error and "\n" not in error
+    written = read_markers(markers)
+    assert sorted(written.numbers) == [1, 2, 3, 4] and set(written.statuses) == {"ok"}
+    order = np.array(written.numbers) - 1
+    np.testing.assert_allclose(written.points, truth.marker_centres[order], atol=0.05)
     assert not (tmp_path / "ipc.vtp").exists()
 
 

@@ -22,7 +22,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from RAMSICPRegistrationLib.image.ct_pipeline import process_ct
+from RAMSICPRegistrationLib.image.ct_pipeline import NoBoneSurface, process_ct
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.reference_ct_family import make_family_ct, score_image_side
 
@@ -35,6 +35,8 @@ def run_seed(seed, profile):
     try:
         image = process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
         score = score_image_side(volume, truth, image)
+    except NoBoneSurface as error:  # no IPC; the marker spheres found are given all the same
+        score = score_image_side(volume, truth, None, str(error), error.usable)
     except ValueError as error:
         score = score_image_side(volume, truth, None, str(error))
     return truth.settings, score, time.perf_counter() - start, volume.voxels.size

@@ -63,7 +63,7 @@ def add_parser(commands):
 
 
 def run(arguments):
-    from ..image.ct_pipeline import process_ct
+    from ..image.ct_pipeline import NoBoneSurface, process_ct
     from ..image.ct_segmentation import resample_points
     from ..image.marker_spheres import sphere_labelmap
     from ..image.volume_io import CTVolume, load_volume, save_nrrd
@@ -84,13 +84,26 @@ def run(arguments):
     check_hounsfield_units(volume.voxels, threshold)
     load_seconds = time.perf_counter() - clock
     tool = tool_marker_geometry(arguments.tool)
-    image = process_ct(
-        volume,
-        threshold,
-        fill_cavities=not arguments.keep_cavities,
-        tool_markers=tool,
-        progress=Progress(),
-    )
+    try:
+        image = process_ct(
+            volume,
+            threshold,
+            fill_cavities=not arguments.keep_cavities,
+            tool_markers=tool,
+            progress=Progress(),
+        )
+    except NoBoneSurface as error:
+        if arguments.markers is None:
+            raise
+        # No IPC, but the marker centres found are the user's: written before the error, as a whole file.
+        spheres = error.detection.spheres
+        write_markers(
+            arguments.markers, [s.centre for s in spheres], [s.number for s in spheres], [s.status for s in spheres]
+        )
+        raise ValueError(
+            f"{error}; the {len(spheres)} marker spheres found ({len(error.usable)} of {len(tool)} usable) are in "
+            f"{arguments.markers}"
+        ) from error
     seconds = {"load": load_seconds, **image.seconds}
     segmentation, spheres, warnings = image.segmentation, list(image.spheres), list(image.warnings)
     points, triangles = image.surface.points, image.surface.triangles

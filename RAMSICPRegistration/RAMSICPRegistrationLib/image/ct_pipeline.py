@@ -11,7 +11,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
-from .marker_spheres import detect_marker_spheres, label_sphere_voxels
+from .marker_spheres import detect_marker_spheres, label_sphere_voxels, usable_spheres
+
+
+class NoBoneSurface(ValueError):
+    """The CT gives no IPC: no object in it is plausibly bone, or all of the bone's surface lies next to metal. The
+    marker spheres were found all the same: ``detection`` (a ``marker_spheres.MarkerDetection``), ``usable`` the
+    ones the coarse registration may use (status 'ok', paired with a tool marker)."""
+
+    def __init__(self, message, detection):
+        super().__init__(message)
+        self.detection = detection
+
+    @property
+    def usable(self):
+        return usable_spheres(self.detection.spheres)
 
 
 @dataclass(frozen=True)
@@ -41,7 +55,7 @@ class ImageSideResult:
     @property
     def usable(self):
         """The spheres the coarse registration may use: status 'ok' and paired with a tool marker."""
-        return tuple(sphere for sphere in self.spheres if sphere.status == "ok" and sphere.number > 0)
+        return usable_spheres(self.spheres)
 
 
 def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, tool_markers=None, progress=None):
@@ -58,8 +72,9 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     the posts and frame they touch, so a labelmap of the spheres shows the spheres only.
 
     Raises:
-        ValueError: a bad threshold, or no object in the CT that is plausibly bone (the message says what was
-            found).
+        ValueError: a bad threshold, or no voxel above it.
+        NoBoneSurface: no object in the CT that is plausibly bone, or none of its surface away from metal (the
+            message says what was found); it holds the marker spheres found.
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
@@ -74,8 +89,11 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     seconds["marker_spheres"] = time.perf_counter() - clock
     report("bone surface", 2, 3)
     clock = time.perf_counter()
-    segmentation = with_bone(volume, segmentation, reference_body_spheres(detection))
-    surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
+    try:
+        segmentation = with_bone(volume, segmentation, reference_body_spheres(detection))
+        surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
+    except ValueError as error:  # the spheres found are the user's all the same
+        raise NoBoneSurface(str(error), detection) from error
     seconds["surface"] = time.perf_counter() - clock
     spheres = label_sphere_voxels(volume, segmentation, detection.spheres)
     report("bone surface", 3, 3)

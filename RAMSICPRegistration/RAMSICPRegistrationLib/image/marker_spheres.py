@@ -47,7 +47,8 @@ logger = logging.getLogger(__name__)
 
 RADIUS_TOLERANCE_MM = 0.6
 #: A sphere whose clean edges lie off it (outliers of the fit) on more than this fraction of its rays is partial
-#: (twice this when at least 90 % of its surface is seen: a thick post's junction puts some edges off).
+#: (twice this when at least 90 % of its surface is seen or the rest fits it within CLEAN_FIT_MM: a thick post's
+#: junction, a frame it is sunk into, streaks put some edges off; a cap cut off leaves its rays hollow, MAX_MISSING).
 MAX_OFF_SPHERE = 0.08
 RESIDUAL_LIMIT_MM = 0.2
 #: A sphere seen over less than this fraction of its surface is partial: its centre is less sure ...
@@ -153,6 +154,11 @@ class MarkerDetection:
     def ok_centres(self):
         """(K, 3) centres of the spheres with status 'ok'."""
         return np.array([sphere.centre for sphere in self.spheres if sphere.status == "ok"]).reshape(-1, 3)
+
+
+def usable_spheres(spheres):
+    """The spheres the coarse registration may use: status 'ok' and paired with a tool marker (``number`` > 0)."""
+    return tuple(sphere for sphere in spheres if sphere.status == "ok" and sphere.number > 0)
 
 
 def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_DIAMETER_MM, tool_markers=None):
@@ -482,7 +488,7 @@ def _status(volume, centre, radius, fitted_radius, rms, coverage, off_sphere, mi
     round_enough = abs(fitted_radius - radius) <= RADIUS_TOLERANCE_MM and rms <= RESIDUAL_LIMIT_MM
     if round_enough and missing > MAX_MISSING:
         return "partial", f"{100 * missing:.0f} % of its rays find air within its radius (a cap missing?)"
-    if round_enough and off_sphere > MAX_OFF_SPHERE * (2.0 if coverage >= 0.9 else 1.0):
+    if round_enough and off_sphere > MAX_OFF_SPHERE * (2.0 if coverage >= 0.9 or rms <= CLEAN_FIT_MM else 1.0):
         # Clean edges that are not on the sphere: a cap cut off (Fig. 4a), a dent; its centre may have moved.
         return "partial", f"{100 * off_sphere:.0f} % of the edge found lies off the sphere (a cap missing?)"
     if round_enough and (coverage >= COVERAGE_LIMIT or (coverage >= SEEN_CLEANLY and rms <= CLEAN_FIT_MM)):

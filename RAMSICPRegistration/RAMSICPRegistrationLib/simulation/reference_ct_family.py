@@ -609,8 +609,9 @@ class FamilyScore:
     unpairable: int = 0
 
 
-def score_image_side(volume, truth, image=None, refused=""):
-    """Score an ``ImageSideResult`` (or a refusal message, with ``image`` None) against a FamilyTruth."""
+def score_image_side(volume, truth, image=None, refused="", usable=()):
+    """Score an ``ImageSideResult`` (or a refusal message, with ``image`` None, and the ``usable`` marker spheres the
+    refusal gave all the same: ``ct_pipeline.NoBoneSurface.usable``) against a FamilyTruth."""
     from scipy.spatial import cKDTree
 
     visible, cut = truth.visible, truth.cut
@@ -618,16 +619,18 @@ def score_image_side(volume, truth, image=None, refused=""):
     unpairable = 0
     if in_view < 3:
         unpairable, visible = int(visible.sum()), np.zeros_like(visible)
-    if image is None:
-        return FamilyScore(int(visible.sum()), 0, 0, int(cut.sum()), 0, 0, 0, 0, 0.0, refused, unpairable)
     found = false = cut_usable = 0
-    for sphere in image.usable:
+    for sphere in usable if image is None else image.usable:
         error = np.linalg.norm(sphere.centre - truth.marker_centres[sphere.number - 1])
         if error <= FOUND_WITHIN_MM and visible[sphere.number - 1]:
             found += 1
         elif error > FOUND_WITHIN_MM:
             false += 1
         cut_usable += bool(cut[sphere.number - 1])
+    if image is None:
+        return FamilyScore(
+            int(visible.sum()), found, false, int(cut.sum()), cut_usable, 0, 0, 0, 0.0, refused, unpairable
+        )
     points = image.surface.points
     on_bone = truth.bone_distance(points) <= ON_BONE_MM
     on_body = ~on_bone & (truth.body_distance(points) <= 1.0)
