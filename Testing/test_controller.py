@@ -292,6 +292,39 @@ def test_process_ct_cancel_writes_nothing(scene, tibia_phantom):
     controller.close()
 
 
+def test_a_ct_without_a_bone_gives_its_marker_centres_in_a_node_of_their_own(scene):
+    """No object in the CT is plausibly bone (the reference-body phantom without its shaft): no IPC, the message
+    says why, and the 4 marker spheres found are put in a markups node apart, the workflow's nodes left alone."""
+    from RAMSICPRegistrationLib.image.volume_io import CTVolume
+    from RAMSICPRegistrationLib.navigation.navigation import REFUSED_CT_MARKERS
+    from RAMSICPRegistrationLib.simulation.ct_painting import ReferenceBodyModel
+    from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
+        SHAFT_RADIUS_MM,
+        SOFT_TISSUE_MM,
+        make_reference_body_phantom,
+    )
+
+    volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
+    ras = volume.ijk_to_ras_points(np.argwhere(np.ones(volume.voxels.shape, dtype=bool)))
+    voxels = volume.voxels.copy().reshape(-1)
+    voxels[np.hypot(ras[:, 0], ras[:, 1]) < SHAFT_RADIUS_MM + SOFT_TISSUE_MM + 2.0] = -1000
+    controller = NavigationController(scene)
+    ct = CTVolume(voxels.reshape(volume.voxels.shape), volume.ijk_to_ras)
+    controller.parameters.ctVolume = mrml_nodes.volume_node(scene, ct, "CT")
+    assert controller.run("process_ct") is None
+    message = controller.status().message
+    assert "plausibly bone" in message and f"(4 of 4 usable) are in the markups node '{REFUSED_CT_MARKERS}'" in message
+    node = scene.GetFirstNodeByName(REFUSED_CT_MARKERS)
+    labels = [node.GetNthControlPointLabel(i) for i in range(node.GetNumberOfControlPoints())]
+    assert sorted(labels) == ["M1 ok", "M2 ok", "M3 ok", "M4 ok"]
+    for i, label in enumerate(labels):
+        centre = np.array(node.GetNthControlPointPosition(i))
+        assert np.linalg.norm(centre - truth.marker_centres[int(label[1]) - 1]) < 0.05
+    parameters = controller.parameters
+    assert parameters.markersImage is None and parameters.ipcModel is None and parameters.segmentation is None
+    controller.close()
+
+
 def test_process_ct_refuses_a_second_run_while_one_is_going(scene, tibia_phantom):
     """The Slicer widget's progress callback processes events, so a second click on 'Process CT' can arrive
     while the first run goes on: it is refused with a message, and the button is disabled meanwhile."""

@@ -24,7 +24,7 @@ from ..core.registration import DEFAULT_METHOD, register
 from ..core.robot import image_to_robot_base, robot_base_to_tracker
 from ..core.surface_index import SurfaceIndex
 from ..core.transforms import apply_transform
-from ..image.ct_pipeline import process_ct
+from ..image.ct_pipeline import NoBoneSurface, process_ct
 from ..image.ct_segmentation import DEFAULT_THRESHOLD_HU
 from ..image.hounsfield import check_bone_threshold, check_hounsfield_units
 from ..image.volume_io import load_volume
@@ -35,6 +35,10 @@ from . import mrml_nodes
 from .parameters import Parameters, get_parameter_node
 
 logger = logging.getLogger(__name__)
+
+
+#: The markups node holding the marker spheres of a CT that gave no IPC (no bone in it).
+REFUSED_CT_MARKERS = "MarkersImage (CT without IPC)"
 
 
 @dataclass(frozen=True)
@@ -128,9 +132,18 @@ class NavigationLogic:
             check_bone_threshold(threshold_hu)  # a fraction or a soft-tissue threshold, before any work
         volume = load_volume(volume_node)
         check_hounsfield_units(volume.voxels, threshold_hu)
-        image = self.image_processor(
-            volume, threshold_hu, tool_markers=tool_marker_geometry(tool_id), progress=progress
-        )
+        tool = tool_marker_geometry(tool_id)
+        try:
+            image = self.image_processor(volume, threshold_hu, tool_markers=tool, progress=progress)
+        except NoBoneSurface as error:
+            # No IPC, but the marker centres found are the user's: in a node of their own (an earlier run's nodes,
+            # which the workflow uses, are left as they were).
+            spheres = error.detection.spheres
+            node = self._marker_node(spheres, name=REFUSED_CT_MARKERS)
+            raise ValueError(
+                f"{error}; the {len(spheres)} marker spheres found ({len(error.usable)} of {len(tool)} usable) are in "
+                f"the markups node '{node.GetName()}'"
+            ) from error
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         parameters = self.parameters
         for old in (parameters.segmentation, parameters.ipcModel, parameters.markersImage):
@@ -138,16 +151,20 @@ class NavigationLogic:
                 self.scene.RemoveNode(old)
         segmentation_node = mrml_nodes.segmentation_node(self.scene, volume, segmentation, spheres)
         ipc = mrml_nodes.model_node(self.scene, surface.points, surface.triangles, name="IPC")
-        markers = mrml_nodes.fiducial_node(
-            self.scene,
-            np.array([s.centre for s in spheres]).reshape(-1, 3),
-            [marker_label(s.number, s.status) for s in spheres],  # M<n> <status>, as ramsicp ipc writes them
-            name="MarkersImage",
-        )
+        markers = self._marker_node(spheres)
         parameters.ctVolume = volume_node
         parameters.thresholdHU = segmentation.threshold_hu
         parameters.segmentation, parameters.ipcModel, parameters.markersImage = segmentation_node, ipc, markers
         return ImageSideNodes(segmentation_node, ipc, markers, image.warnings)
+
+    def _marker_node(self, spheres, name="MarkersImage"):
+        """A fiducial node of the spheres found, labelled M<n> <status> as ``ramsicp ipc`` writes them."""
+        return mrml_nodes.fiducial_node(
+            self.scene,
+            np.array([s.centre for s in spheres]).reshape(-1, 3),
+            [marker_label(s.number, s.status) for s in spheres],
+            name=name,
+        )
 
     # -- 2. tracker ----------------------------------------------------------------------------------------
     def build_hierarchy(self, probe_tip_to_probe, probe_to_reference, reference_to_image):
