@@ -19,7 +19,7 @@ from functools import partial
 import numpy as np
 from scipy import ndimage
 
-from .bone_recognition import recognise_bone
+from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
@@ -289,6 +289,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     box = tuple(slice(a, b) for a, b in zip(low, high))
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
+    half_max = level == "half-max"
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
     # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
     # bone's inside may hold, nor clutter too small to be anything).
@@ -382,6 +383,16 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         logger.info("%d bone-surface points next to the reference body's bracket left out", int(by_body.sum()))
     if len(vertices_ijk) == 0:
         raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
+    if half_max and volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+        local = _local_half_max(segmentation.smoothed[box], vertices_ijk, volume.spacing)
+        if local is not None and abs(local - level) > LEVEL_TOLERANCE_HU:
+            # The level read off the whole bone's rim and band is off where the surface is (a thin layer of soft
+            # tissue with air beyond it in the band, a cortex thinner than the blur): once more at the level read
+            # across the surface itself.
+            logger.info(
+                "bone surface at half-max %.0f HU read across the surface (%.0f HU round the bone)", local, level
+            )
+            return bone_surface(volume, segmentation, fill_cavities, local, leave_out_metal)
     return BoneSurface(
         points=volume.ijk_to_ras_points(vertices_ijk + origin),
         triangles=triangles,
@@ -447,6 +458,41 @@ def _facing_inward(image, vertices, mask, spacing):
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
+
+
+#: The half-max read across the surface: the cortex's peak within this far (mm) inside each sampled surface point,
+#: what lies beyond it this far out (mm, past the blur, within a thin layer of soft tissue), at most this many points.
+LOCAL_INSIDE_MM = 2.5
+LOCAL_OUTSIDE_MM = (1.0, 2.0)
+LOCAL_SAMPLES = 4000
+#: ... and the IPC is taken again at that level when it is this far (HU) from the one read round the bone.
+LEVEL_TOLERANCE_HU = 40.0
+
+
+def _local_half_max(image, vertices, spacing):
+    """The surface level (HU) half-way between the cortex and what it touches, read along the gradient through up to
+    LOCAL_SAMPLES surface points (indices (M, 3) in ``image``, the denoised CT): the median over them of half the
+    sum of the brightest value within LOCAL_INSIDE_MM inside and the median LOCAL_OUTSIDE_MM outside. None when
+    fewer than 100 of them cross a cortex (a rise of CORTEX_CONTRAST_HU)."""
+    points = vertices[:: max(1, len(vertices) // LOCAL_SAMPLES)]
+    gradient = np.stack([_difference_along(image, points, step) for step in np.eye(3)], axis=1) / (2.0 * spacing)
+    out = -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)  # unit, mm, grid axes
+
+    def along(distances):
+        return np.stack(
+            [
+                ndimage.map_coordinates(image, (points + t * out / spacing).T, order=1, mode="nearest")
+                for t in distances
+            ],
+            axis=1,
+        )
+
+    peak = along(np.arange(-LOCAL_INSIDE_MM, 1e-6, 0.25)).max(axis=1)
+    beyond = np.median(along(np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.25)), axis=1)
+    crossing = (peak - beyond >= CORTEX_CONTRAST_HU) & (beyond > BELOW_AIR_HU)
+    if crossing.sum() < 100:
+        return None
+    return float(np.median(0.5 * (peak + beyond)[crossing]))
 
 
 def _difference_along(image, vertices, step):
@@ -604,6 +650,8 @@ def fill_axis(mask, spacing):
     return int(np.argmax([(p[-1] - p[0] + 1) * s for p, s in zip(present, spacing)]))
 
 
+#: Denoised values below this (HU) are no air: a round field of view's padding, blurred.
+BELOW_AIR_HU = -1100.0
 #: The blurred edge of metal reaches this far (mm) into what is round it.
 METAL_EDGE_MM = 2.5
 
@@ -628,7 +676,9 @@ def _surface_level(image, mask, threshold, level, spacing):
         return threshold
     cortex = float(np.percentile(rim_values, 95))
     beyond_blur = dilate(mask, 2)
-    outside = float(np.median(image[dilate(beyond_blur, 2) & ~beyond_blur]))
+    band = image[dilate(beyond_blur, 2) & ~beyond_blur]
+    in_view = band[band > BELOW_AIR_HU]  # a round field of view's padding (-2048, -3024 HU) is not what it touches
+    outside = float(np.median(in_view if in_view.size else band))
     logger.info(
         "bone surface at half-max %.0f HU (cortex %.0f HU, outside %.0f HU)", (cortex + outside) / 2, cortex, outside
     )
