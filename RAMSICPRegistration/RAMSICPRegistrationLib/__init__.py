@@ -119,6 +119,7 @@ _EXPORTS = {
     "pair_by_geometry": "core.marker_geometry",
     "find_metal_zone": "image.metal",
     "process_ct": "image.ct_pipeline",
+    "NoBoneSurface": "image.ct_pipeline",
     # simulation
     "make_ct_phantom": "simulation.ct_phantom",
     "make_reference_body_phantom": "simulation.reference_body_phantom",

@@ -21,8 +21,8 @@ def add_parser(commands):
         description="Finds the reference body's marker spheres (11.5 mm) anywhere in the CT and numbers them in the "
         "tool's order by its inter-marker distances (a missing one is located); segments the CT by a threshold, "
         "recognises the bone as the object holding no sphere, with a cortex (cut off a bracket that joins it to the "
-        "reference body; no plausible bone: exit 2 with what was found), and writes its outer surface as the IPC "
-        "(in the CT's RAS coordinates).",
+        "reference body; no plausible bone: exit 2 with what was found, the marker centres written all the same with "
+        "--markers), and writes its outer surface as the IPC (in the CT's RAS coordinates).",
     )
     ipc.add_argument("ct", help="CT volume: .nrrd, .nhdr, .nii, .nii.gz or a DICOM series folder")
     ipc.add_argument(
