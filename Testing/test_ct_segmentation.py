@@ -192,21 +192,39 @@ def test_marrow_opened_by_a_hole_is_enclosed_along_the_lines_and_the_outside_is_
 
 def enclosed_by_walking_the_lines(mask, on_edge, spacing, padding):
     """The line enclosure by its definition, voxel by voxel: the nearest bone before and after along each axis."""
+    from scipy import ndimage
+
     from RAMSICPRegistrationLib.image.ct_segmentation import MAX_CAVITY_MM
 
     enclosed = np.zeros(mask.shape, dtype=bool)
+    # Where a box's side is the CT's, the bone's cut face (its slice there, holes filled) walls the lines beyond it.
+    faces = [
+        [
+            ndimage.binary_fill_holes(np.take(mask, side, axis=axis)) if on_edge[axis][k] else None
+            for k, side in enumerate((0, -1))
+        ]
+        for axis in range(3)
+    ]
     for voxel in zip(*np.nonzero(~mask)):
         narrow, closed = 0, True
         for axis in range(3):
-            line = mask[tuple(slice(None) if a == axis else v for a, v in enumerate(voxel))]
-            here, reach = voxel[axis], MAX_CAVITY_MM / spacing[axis]
+            line = list(mask[tuple(slice(None) if a == axis else v for a, v in enumerate(voxel))])
+            across = tuple(v for a, v in enumerate(voxel) if a != axis)
+            low_face, high_face = faces[axis]
+            line = ([bool(low_face[across])] if low_face is not None else []) + line
+            line += [bool(high_face[across])] if high_face is not None else []
+            here, reach = voxel[axis] + (low_face is not None), MAX_CAVITY_MM / spacing[axis]
             before = [i for i in range(here + 1) if line[i]]
             after = [i for i in range(here, len(line)) if line[i]]
             narrow += bool(before and after and after[0] - before[-1] <= reach)
             near = (before and here - before[-1] <= reach) or (after and after[0] - here <= reach)
             walled = padding is not None and axis < 2
+            shift, last = int(low_face is not None), mask.shape[axis] - 1  # the walls repeat the padding's rows
             past = (
-                [padding[tuple(i if a == axis else voxel[a] for a in range(2))] for i in range(len(line))]
+                [
+                    padding[tuple(min(max(i - shift, 0), last) if a == axis else voxel[a] for a in range(2))]
+                    for i in range(len(line))
+                ]
                 if walled
                 else []
             )

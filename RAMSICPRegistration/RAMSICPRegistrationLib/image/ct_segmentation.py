@@ -537,7 +537,18 @@ def _enclosed_along_lines(mask, on_edge, spacing, padding=None):
 def _enclosed_along_axis(mask, axis, on_edge, spacing, padding):
     """``_enclosed_along_lines`` along one ``axis``: (I, J, K) booleans of the voxels with the bone on both sides
     within MAX_CAVITY_MM in all, and of those with the bone on a side within MAX_CAVITY_MM or the bone or the CT's
-    edge (``on_edge``: the box's low and high sides on the CT's, ``padding``) on both sides."""
+    edge (``on_edge``: the box's low and high sides on the CT's, ``padding``) on both sides.
+
+    Where the box's side is the CT's, the bone's cross-section there (its slice with the holes filled: the cortex
+    and the marrow it rings) walls the lines that end in it, one slice beyond the box: the field of view cuts the
+    bone there, and its marrow goes on beyond."""
+    walls = [_cut_face(mask, axis, side) if on_side else None for side, on_side in zip((0, -1), on_edge)]
+    start = int(walls[0] is not None)
+    mask = np.concatenate([part for part in (walls[0], mask, walls[1]) if part is not None], axis=axis)
+    if padding is not None and axis < 2:  # the padding's rows go on into the walls
+        padding = np.pad(
+            padding, [(start, int(walls[1] is not None)) if a == axis else (0, 0) for a in range(2)], "edge"
+        )
     shape = [1, 1, 1]
     shape[axis] = mask.shape[axis]
     index = np.arange(mask.shape[axis]).reshape(shape)
@@ -553,7 +564,18 @@ def _enclosed_along_axis(mask, axis, on_edge, spacing, padding):
     if padding is not None and axis < 2:
         edge_before = edge_before | np.logical_or.accumulate(padding, axis=axis)[:, :, None]
         edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
-    return both, near | ((edge_before | before) & (edge_after | after))
+    closed = near | ((edge_before | before) & (edge_after | after))
+    inside = tuple(
+        slice(start, start + shape[axis] - len([w for w in walls if w is not None])) if a == axis else slice(None)
+        for a in range(3)
+    )
+    return both[inside], closed[inside]
+
+
+def _cut_face(mask, axis, side):
+    """(I, J, K) booleans, one slice thick along ``axis``: the mask's slice at ``side`` (0 or -1) with its holes filled
+    in the slice."""
+    return np.expand_dims(ndimage.binary_fill_holes(np.take(mask, side, axis=axis)), axis)
 
 
 def _between_near(mask, axis, reach):
