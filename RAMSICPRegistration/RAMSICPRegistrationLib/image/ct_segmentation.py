@@ -543,7 +543,7 @@ def _enclosed_along_axis(mask, axis, on_edge, spacing, padding):
     and the marrow it rings) walls the lines that end in it, one slice beyond the box: the field of view cuts the
     bone there, and its marrow goes on beyond."""
     walls = [_cut_face(mask, axis, side) if on_side else None for side, on_side in zip((0, -1), on_edge)]
-    start = int(walls[0] is not None)
+    start, length = int(walls[0] is not None), mask.shape[axis]  # where the box's own slices are, between the walls
     mask = np.concatenate([part for part in (walls[0], mask, walls[1]) if part is not None], axis=axis)
     if padding is not None and axis < 2:  # the padding's rows go on into the walls
         padding = np.pad(
@@ -565,10 +565,7 @@ def _enclosed_along_axis(mask, axis, on_edge, spacing, padding):
         edge_before = edge_before | np.logical_or.accumulate(padding, axis=axis)[:, :, None]
         edge_after = edge_after | np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
     closed = near | ((edge_before | before) & (edge_after | after))
-    inside = tuple(
-        slice(start, start + shape[axis] - len([w for w in walls if w is not None])) if a == axis else slice(None)
-        for a in range(3)
-    )
+    inside = tuple(slice(start, start + length) if a == axis else slice(None) for a in range(3))
     return both[inside], closed[inside]
 
 
