@@ -62,3 +62,17 @@ def test_one_core_runs_every_step_in_the_calling_thread(monkeypatch):
     assert in_parallel(threading.get_ident, threading.get_ident) == [threading.get_ident()] * 2
     monkeypatch.setenv("RAMSICP_THREADS", "3")
     assert parallel.cores() == 3
+
+
+def test_slabs_cover_every_row_once_one_per_core_and_none_thinner_than_asked(monkeypatch):
+    from RAMSICPRegistrationLib.image.parallel import in_slabs
+
+    monkeypatch.setattr(parallel, "cores", lambda: 4)
+    for length, min_rows, slabs in ((100, 1, 4), (100, 40, 2), (10, 40, 1), (3, 1, 3), (0, 1, 1)):
+        seen = []
+        in_slabs(length, lambda start, stop, seen=seen: seen.append((start, stop)), min_rows=min_rows)
+        seen.sort()
+        assert len(seen) == slabs
+        assert [row for start, stop in seen for row in range(start, stop)] == list(range(length))
+        if slabs > 1:
+            assert min(stop - start for start, stop in seen) >= min_rows

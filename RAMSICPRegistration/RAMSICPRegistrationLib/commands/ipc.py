@@ -67,7 +67,7 @@ def run(arguments):
     from ..image.ct_segmentation import resample_points
     from ..image.marker_spheres import sphere_labelmap
     from ..image.volume_io import CTVolume, load_volume, save_nrrd
-    from ..io.marker_files import check_markers_path, write_markers
+    from ..io.marker_files import check_markers_path
     from ..io.ndi_tools import tool_marker_geometry
     from ..io.point_files import _suffix, write_points
     from ..io.surface_files import SURFACE_SUFFIXES, write_surface
@@ -96,14 +96,8 @@ def run(arguments):
         if arguments.markers is None:
             raise
         # No IPC, but the marker centres found are the user's: written before the error, as a whole file.
-        spheres = error.detection.spheres
-        write_markers(
-            arguments.markers, [s.centre for s in spheres], [s.number for s in spheres], [s.status for s in spheres]
-        )
-        raise ValueError(
-            f"{error}; the {len(spheres)} marker spheres found ({len(error.usable)} of {len(tool)} usable) are in "
-            f"{arguments.markers}"
-        ) from error
+        _write_spheres(arguments.markers, error.detection.spheres)
+        raise ValueError(f"{error}; {error.spheres_found(len(tool))} are in {arguments.markers}") from error
     seconds = {"load": load_seconds, **image.seconds}
     segmentation, spheres, warnings = image.segmentation, list(image.spheres), list(image.warnings)
     points, triangles = image.surface.points, image.surface.triangles
@@ -118,7 +112,7 @@ def run(arguments):
             arguments.labelmap, CTVolume(voxels=sphere_labelmap(segmentation, spheres), ijk_to_ras=volume.ijk_to_ras)
         )
     if arguments.markers is not None:
-        write_markers(arguments.markers, image.centres, [s.number for s in spheres], [s.status for s in spheres])
+        _write_spheres(arguments.markers, spheres)
     voxels = "x".join(str(n) for n in volume.voxels.shape)
     print(f"CT               {arguments.ct}: {voxels} voxels of {' x '.join(f'{s:g}' for s in volume.spacing)} mm")
     print(f"threshold        {segmentation.threshold_hu:.0f} HU")
@@ -181,3 +175,10 @@ def run(arguments):
         )
         return EXIT_TOO_FEW_MARKERS
     return 0
+
+
+def _write_spheres(path, spheres):
+    """The spheres' centres, labelled with their marker numbers and statuses (``M<n> <status>``)."""
+    from ..io.marker_files import write_markers
+
+    write_markers(path, [s.centre for s in spheres], [s.number for s in spheres], [s.status for s in spheres])

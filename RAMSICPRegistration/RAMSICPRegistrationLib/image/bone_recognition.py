@@ -198,7 +198,7 @@ def _recognise(volume, segmentation, held, census, reached=()):
             verdicts.append(ObjectVerdict(label, sizes[label] * voxel_mm3, 0.0, None, len(held[label]), "too small"))
             continue
         shape = census.shapes[label]
-        if held[label] and shape.filled.sum() * np.prod(shape.cell) < 2.0 * MIN_BONE_MM3:
+        if held[label] and shape.filled_mm3 < 2.0 * MIN_BONE_MM3:
             verdict, bone = shape.verdict(len(held[label])), None  # too small to hold a bone besides
         elif held[label]:
             # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too, unless with them
@@ -462,6 +462,7 @@ class _ObjectShape:
         padding = self.max_hu < PADDING_HU
         self.filled = _filled(self.mask, open_sides, padding)
         self.depth = ndimage.distance_transform_edt(self.filled, sampling=self.cell)
+        self.filled_mm3 = float(self.filled.sum() * np.prod(self.cell))
         self._solid_parts = None
 
     def verdict(self, spheres, filled=None, depth=None):
@@ -513,7 +514,7 @@ class _ObjectShape:
         coarser than SOLID_MAX_VOXEL_MM blur a cortex into the bone's inside: no part is told solid in them.
         """
         cell_mm3 = float(np.prod(self.cell))
-        if self.filled.sum() * cell_mm3 < 2.0 * MIN_BONE_MM3 or self.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
+        if self.filled_mm3 < 2.0 * MIN_BONE_MM3 or self.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
             return []
         for opening in [r for r in OPENING_RADII_MM[::-1] if r <= self.depth.max()]:
             cores, count = ndimage.label(self.depth >= opening)
@@ -757,7 +758,7 @@ def _may_hold_a_body(shape, seeds):
     """True when the recognition will ask for the object's solid parts: it holds the body's ``seeds`` and is large
     enough for a bone besides, or it holds none and looks like bone."""
     if seeds:
-        return shape.filled.sum() * np.prod(shape.cell) >= 2.0 * MIN_BONE_MM3
+        return shape.filled_mm3 >= 2.0 * MIN_BONE_MM3
     return shape.verdict(0).verdict.startswith("bone")
 
 

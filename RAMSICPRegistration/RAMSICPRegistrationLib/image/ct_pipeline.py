@@ -27,6 +27,11 @@ class NoBoneSurface(ValueError):
     def usable(self):
         return usable_spheres(self.detection.spheres)
 
+    def spheres_found(self, tool_markers):
+        """What the refusal still gives, for its message: "the 4 marker spheres found (3 of 4 usable)"."""
+        spheres = self.detection.spheres
+        return f"the {len(spheres)} marker spheres found ({len(self.usable)} of {tool_markers} usable)"
+
 
 @dataclass(frozen=True)
 class ImageSideResult:

@@ -24,8 +24,8 @@ from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
-from .morphology import all_ahead, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
-from .parallel import cores, in_parallel
+from .morphology import all_behind, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
+from .parallel import in_parallel, in_slabs
 
 logger = logging.getLogger(__name__)
 
@@ -221,7 +221,6 @@ def _denoised(image, sigma):
     """(I, J, K) float32: ``image`` blurred by a Gaussian of ``sigma`` (3,) voxels, in slabs across the first axis
     that overlap by the kernel's reach, one per core: the same values as one ``gaussian_filter`` over the whole."""
     reach = int(DENOISE_TRUNCATE * float(sigma[0]) + 0.5)  # gaussian_filter's kernel radius along the axis
-    cuts = np.linspace(0, len(image), min(cores(), max(1, len(image) // (4 * reach + 4))) + 1).astype(int)
     denoised = np.empty(image.shape, dtype=np.float32)
 
     def slab(start, stop):
@@ -229,7 +228,7 @@ def _denoised(image, sigma):
         blurred = ndimage.gaussian_filter(image[low:high], sigma, truncate=DENOISE_TRUNCATE)
         denoised[start:stop] = blurred[start - low : stop - low]
 
-    in_parallel(*[partial(slab, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])])
+    in_slabs(len(image), slab, min_rows=4 * reach + 4)
     return denoised
 
 
@@ -451,9 +450,7 @@ INNER_WALL_MM = 1.5
 def _facing_inward(image, vertices, mask, spacing):
     """(M,) booleans: iso-surface vertices (indices in ``image``) whose dimmer side, INNER_WALL_MM away along the
     gradient, lies in the bone's ``mask`` (its voxels above the threshold and its filled inside)."""
-    gradient = np.stack(in_parallel(*[partial(_difference_along, image, vertices, step) for step in np.eye(3)]), axis=1)
-    gradient /= 2.0 * spacing
-    down = -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)  # per mm, grid axes
+    down = _downhill(image, vertices, spacing)
     reach = max(INNER_WALL_MM, float(spacing.max()))
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
@@ -475,8 +472,7 @@ def _local_half_max(image, vertices, spacing):
     sum of the brightest value within LOCAL_INSIDE_MM inside and the median LOCAL_OUTSIDE_MM outside. None when
     fewer than 100 of them cross a cortex (a rise of CORTEX_CONTRAST_HU)."""
     points = vertices[:: max(1, len(vertices) // LOCAL_SAMPLES)]
-    gradient = np.stack([_difference_along(image, points, step) for step in np.eye(3)], axis=1) / (2.0 * spacing)
-    out = -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)  # unit, mm, grid axes
+    out = _downhill(image, points, spacing)
 
     def along(distances):
         return np.stack(
@@ -493,6 +489,14 @@ def _local_half_max(image, vertices, spacing):
     if crossing.sum() < 100:
         return None
     return float(np.median(0.5 * (peak + beyond)[crossing]))
+
+
+def _downhill(image, vertices, spacing):
+    """(M, 3) unit vectors down the image's gradient at vertices (M, 3) (indices in ``image``), in mm along the grid's
+    axes (central differences of its trilinear values a voxel either side): from the bone to what is outside it."""
+    steps = [partial(_difference_along, image, vertices, step) for step in np.eye(3)]
+    gradient = np.stack(in_parallel(*steps), axis=1) / (2.0 * spacing)
+    return -gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
 
 
 def _difference_along(image, vertices, step):
@@ -584,8 +588,7 @@ def _between_near(mask, axis, reach):
     inside = tuple(slice(reach, None) if a == axis else slice(None) for a in range(3))
     padded[inside] = mask
     meets = any_ahead(padded, axis, reach)  # the segment starting at each voxel meets the mask
-    every = np.flip(all_ahead(np.flip(meets, axis), axis, reach), axis)  # ... and those starting reach - 1 before
-    return every[inside]
+    return all_behind(meets, axis, reach)[inside]  # ... and so do those starting up to reach - 1 voxels before
 
 
 #: The dark regions round a thin cortex are told apart once opened by a cube about this wide (mm).

@@ -120,6 +120,11 @@ def any_behind(mask, axis, length):
     return np.flip(any_ahead(np.flip(mask, axis), axis, length), axis)
 
 
+def all_behind(mask, axis, length):
+    """``all_ahead`` looking back along ``axis``: the voxel itself and the ``length - 1`` before it in the volume."""
+    return np.flip(all_ahead(np.flip(mask, axis), axis, length), axis)
+
+
 def _ahead(mask, axis, length, combine):
     window = np.array(mask, dtype=bool)
     n = window.shape[axis]

@@ -10,6 +10,9 @@ other, in order, in the calling thread; so does a step that asks for more steps 
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor, wait
+from functools import partial
+
+import numpy as np
 
 _pool = None
 _pool_lock = threading.Lock()
@@ -43,6 +46,14 @@ def in_parallel(*steps):
         for future in futures:  # never leave a step running on arrays the caller may drop or reuse
             future.cancel()
         wait(futures)
+
+
+def in_slabs(length, work, min_rows=1):
+    """Run ``work(start, stop)`` over slabs of rows ``start:stop`` that cut ``range(length)`` into one slab per core
+    (fewer when a slab would hold under ``min_rows`` rows), with ``in_parallel``."""
+    count = min(cores(), max(1, length // max(min_rows, 1)))
+    cuts = np.linspace(0, length, count + 1).astype(int)
+    in_parallel(*[partial(work, int(start), int(stop)) for start, stop in zip(cuts[:-1], cuts[1:])])
 
 
 def _run_in_worker(step):

@@ -22,12 +22,11 @@ The fit (``marker_spheres``) decides on the full-resolution image; this only say
 """
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
 from .morphology import box_max, box_sum
-from .parallel import cores, in_parallel
+from .parallel import in_slabs
 
 #: The coarse grid's cell (mm, about; 1-2 mm): fine enough to place an 11.5 mm sphere's centre within a cell.
 GRID_MM = 1.5
@@ -60,16 +59,15 @@ def block_means(image, block):
     if (block == 1).all():
         return np.asarray(trimmed, dtype=np.float32)
     summed = np.zeros(shape, dtype=np.float32)
+
     # Slabs of whole blocks across the first axis, one per core; in each, the blocks summed offset by offset (a
     # strided view each): a reduction over the reshaped blocks' axes is 3-4 times slower.
-    cuts = np.linspace(0, shape[0], min(cores(), shape[0]) + 1).astype(int)
-
     def slab(start, stop):
         rows = trimmed[start * block[0] : stop * block[0]]
         for offset in np.ndindex(*block):
             summed[start:stop] += rows[tuple(slice(o, None, b) for o, b in zip(offset, block))]
 
-    in_parallel(*[partial(slab, start, stop) for start, stop in zip(cuts[:-1], cuts[1:])])
+    in_slabs(int(shape[0]), slab)
     return summed / np.float32(np.prod(block))
 
 

@@ -138,11 +138,9 @@ class NavigationLogic:
         except NoBoneSurface as error:
             # No IPC, but the marker centres found are the user's: in a node of their own (an earlier run's nodes,
             # which the workflow uses, are left as they were).
-            spheres = error.detection.spheres
-            node = self._marker_node(spheres, name=REFUSED_CT_MARKERS)
+            node = self._marker_node(error.detection.spheres, name=REFUSED_CT_MARKERS)
             raise ValueError(
-                f"{error}; the {len(spheres)} marker spheres found ({len(error.usable)} of {len(tool)} usable) are in "
-                f"the markups node '{node.GetName()}'"
+                f"{error}; {error.spheres_found(len(tool))} are in the markups node '{node.GetName()}'"
             ) from error
         segmentation, surface, spheres = image.segmentation, image.surface, image.spheres
         parameters = self.parameters
