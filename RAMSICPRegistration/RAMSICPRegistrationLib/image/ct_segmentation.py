@@ -20,6 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
+from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
@@ -351,11 +352,16 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
         # made in it): its outside, a little way down the gradient, is still the bone's, or enclosed by it along
-        # the grid's lines (with voxels that resolve the cortex: coarser ones merge bones a few mm apart).
+        # the grid's lines, or in its envelope with such holes plugged (with voxels that resolve the cortex:
+        # coarser ones merge bones a few mm apart).
         bone_and_inside = mask
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
             on_edge = _on_ct_edge(segmentation, low, high, volume)
             bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
+            open_sides = _open_sides(segmentation.origin + low, segmentation.origin + high, volume)
+            envelope = bone_envelope(mask, open_sides, volume.spacing, padding)
+            if envelope is not None:
+                bone_and_inside |= envelope
         inner = _facing_inward(image, vertices_ijk, bone_and_inside, volume.spacing)
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
@@ -608,17 +614,22 @@ def _enclosed(image, levels, walls, low, high, volume):
     marrow); the inside found is grown back two voxels into the dark. None when every side of the box is on the
     CT's edge (the bone fills the field of view), so that none can be told.
     """
-    open_sides = [
-        (axis, side)
-        for axis in range(3)
-        for side, on_edge in ((0, low[axis] == 0), (-1, high[axis] == volume.voxels.shape[axis]))
-        if not on_edge
-    ]
+    open_sides = _open_sides(low, high, volume)
     if not open_sides:
         return None
     size = max(1, int(round(OPENING_MM / float(volume.spacing.max())))) | 1  # odd, at least 1
     inside = in_parallel(*[partial(_enclosed_below, image, level, walls, open_sides, size) for level in levels])
     return dilate(np.logical_or.reduce(inside), 2, within=(image < levels[0]) & ~walls)
+
+
+def _open_sides(low, high, volume):
+    """[(axis, 0 or -1)]: the sides of a box (``low``, ``high``: its corners in the CT's indices) off the CT's edge."""
+    return [
+        (axis, side)
+        for axis in range(3)
+        for side, on_edge in ((0, low[axis] == 0), (-1, high[axis] == volume.voxels.shape[axis]))
+        if not on_edge
+    ]
 
 
 def _enclosed_below(image, level, walls, open_sides, size):
