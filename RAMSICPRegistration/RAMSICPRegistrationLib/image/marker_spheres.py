@@ -70,6 +70,13 @@ MIN_COVERAGE = 0.35
 RAYS = 400
 RAY_STEP_MM = 0.1
 MIN_RAYS = 60
+#: A ray whose profile, SHOULDER_MM past its edge, is still more than SHOULDER_LIMIT of the contrast above its outside
+#: and more than SHOULDER_RATIO times the sphere's median ray, crosses a thin layer of a dimmer part beyond the edge:
+#: the rim of a sphere sunk into a frame as wide as it is (its edges 0.25-0.28 mm out there, 0.15 of the contrast
+#: left against 0.04-0.08 elsewhere: family seed 10135).
+SHOULDER_MM = 1.0
+SHOULDER_LIMIT = 0.1
+SHOULDER_RATIO = 2.0
 #: A ray finds an edge where the sphere is at least this much brighter (HU) than the ray's own outside.
 EDGE_CONTRAST_HU = 150.0
 #: ... and whose outside is within this (HU, or a tenth of the contrast) of the sphere's usual surroundings.
@@ -405,7 +412,7 @@ def _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
     the edge is where it falls through half-way between the sphere's inside (``inside_hu``) and this ray's own
     outside (its samples 2 to 2.5 mm beyond the radius): air, a dimmer post or plate, or soft tissue. A ray whose
     outside is not at least EDGE_CONTRAST_HU darker (a post or frame as bright as the sphere, or brighter), or
-    that leaves the CT, has none.
+    that leaves the CT, has none; nor has one whose profile lingers above its outside past the edge (SHOULDER_MM).
     """
     along = np.arange(radius - 2.5, radius + 2.5 + 1e-9, RAY_STEP_MM)
     ras = centre + along[None, :, None] * directions[:, None, :]
@@ -435,12 +442,21 @@ def _edges_along_rays(volume, image, low, centre, directions, radius, inside_hu)
     rows = np.arange(len(directions))
     before, after = profiles[rows, np.maximum(first - 1, 0)], profiles[rows, first]
     fraction = np.clip((before - level) / np.maximum(before - after, 1e-6), 0.0, 1.0)
+    edge = along[np.maximum(first - 1, 0)] + fraction * RAY_STEP_MM
+    # A ray whose profile lingers above its outside past the edge crosses a thin layer of a dimmer part (a frame the
+    # sphere is sunk into, as wide as the sphere): the layer's blur moves the edge out (SHOULDER_MM).
+    past = (edge - along[0]) / RAY_STEP_MM + SHOULDER_MM / RAY_STEP_MM
+    beyond = ndimage.map_coordinates(profiles, [rows, past], order=1, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lingering = (beyond - outside_hu) / (own_inside - outside_hu)
+    if valid.sum() >= MIN_RAYS:
+        valid &= lingering <= max(SHOULDER_LIMIT, SHOULDER_RATIO * float(np.median(lingering[valid])))
     # Rays that find the sphere's usual surroundings (air) inside its radius as well as outside: no post or frame
     # hides the sphere there, part of it is missing.
     tolerance = max(STREAK_TOLERANCE_HU, 0.1 * (inside_hu - usual))
     with np.errstate(invalid="ignore"):
         hollow = (np.abs(own_inside - usual) <= tolerance) & (np.abs(outside_hu - usual) <= tolerance)
-    return along[np.maximum(first - 1, 0)] + fraction * RAY_STEP_MM, valid, hollow
+    return edge, valid, hollow
 
 
 def _label_at(volume, segmentation, centre):
