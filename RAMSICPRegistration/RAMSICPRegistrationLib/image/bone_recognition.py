@@ -637,7 +637,7 @@ class _ObjectShape:
         """The cells of ``core`` that leave ``bone`` (cells) as the bracket: pieces crossing the band ROD_FROM_MM to
         ROD_TO_MM from the bone that lead through ``rest`` outside the bone to the ``body`` (cells by the spheres and
         the posts' feet) and are solid (a thin shaft of the bone itself that the bracket is fixed into has its
-        marrow cavity)."""
+        marrow cavity; a flat bone whose cancellous core is above the threshold, its cortex)."""
         away = self._distance_to(bone, ROD_TO_MM)
         pieces, count = ndimage.label(core & (away > ROD_FROM_MM) & (away <= ROD_TO_MM))
         rods = np.zeros(core.shape, dtype=bool)
@@ -653,7 +653,12 @@ class _ObjectShape:
             if not np.isin(outside_bone[cells], to_body).any():
                 continue
             around = self._within(cells, opening + self.cell.max())
-            if (cavity & around).sum() < 2:
+            if (cavity & around).sum() >= 2:
+                continue
+            # No cavity, but a cortex round a dimmer inside above the threshold (a flat bone's cancellous core): the
+            # bone going on, not a rod.
+            contrast = self._cortex(rest & ~bone & around, self._depth_of(rest & ~bone & around))
+            if contrast is None or contrast < CORTEX_CONTRAST_HU:
                 rods |= cells
         return rods
 

@@ -18,6 +18,7 @@ from functools import partial
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .envelope import bone_envelope
@@ -349,6 +350,15 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if between.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
+    if level < segmentation.threshold_hu:
+        # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
+        # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
+        stub = _on_a_dim_stub(
+            segmentation.smoothed[box], image, vertices_ijk, level, segmentation.threshold_hu, volume.spacing
+        )
+        if stub.any():
+            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, stub)
+            logger.info("%d IPC points on a dim part's stub left out", int(stub.sum()))
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
         # made in it): its outside, a little way down the gradient, is still the bone's, or enclosed by it along
@@ -382,12 +392,17 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if spoilt.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
         logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))
+    if len(vertices_ijk) == 0:
+        raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
     by_body = _next_to_body(volume, segmentation, vertices_ijk + low)
     if by_body.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, by_body)
         logger.info("%d bone-surface points next to the reference body's bracket left out", int(by_body.sum()))
     if len(vertices_ijk) == 0:
-        raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
+        raise ValueError(
+            "all of the bone's surface found lies next to the reference body joined to it (its bracket); no IPC can "
+            "be taken from this CT: check that the bone is in the field of view"
+        )
     if half_max and volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
         local = _local_half_max(segmentation.smoothed[box], vertices_ijk, volume.spacing)
         if local is not None and abs(local - level) > LEVEL_TOLERANCE_HU:
@@ -461,6 +476,21 @@ def _facing_inward(image, vertices, mask, spacing):
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
+
+
+def _on_a_dim_stub(original, image, vertices, level, threshold, spacing):
+    """(M,) booleans: iso-surface vertices (indices in ``image``, the CT with what is not the bone's wiped) on a dim
+    part's stub: where the CT as it was (``original``) is still at or above ``level`` INNER_WALL_MM (at least a
+    voxel) down the gradient (the surface only closes off what was wiped), or where nothing reaches the threshold
+    within LOCAL_INSIDE_MM up it (no cortex under the surface: the stub's sides)."""
+    down = _downhill(image, vertices, spacing)
+    reach = max(INNER_WALL_MM, float(spacing.max()))
+
+    def at(distance):
+        return ndimage.map_coordinates(original, (vertices + distance * down / spacing).T, order=1, mode="nearest")
+
+    peak = np.max([at(-distance) for distance in np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5)], axis=0)
+    return (at(reach) >= level) | (peak < threshold)
 
 
 #: The half-max read across the surface: the cortex's peak within this far (mm) inside each sampled surface point,
@@ -646,8 +676,6 @@ def _next_to_body(volume, segmentation, vertices_ijk):
     the reference body joined to the bone (its bracket's stub, and the corner the blur fills round it)."""
     if segmentation.body is None or not segmentation.body.any() or len(vertices_ijk) == 0:
         return np.zeros(len(vertices_ijk), dtype=bool)
-    from scipy.spatial import cKDTree
-
     spacing = volume.spacing
     margin = segmentation.body_margin_mm
     reach = np.ceil(margin / spacing).astype(int) + 1
