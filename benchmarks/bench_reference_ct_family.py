@@ -67,13 +67,14 @@ def main():
         f"load average {os.getloadavg()[0]:.1f} at the start"
     )
     groups = defaultdict(list)
-    seconds, voxels, misses = [], [], []
+    seconds, voxels, misses, scored = [], [], [], []
     for seed in range(arguments.first, arguments.first + arguments.seeds):
         settings, score, elapsed, size = run_seed(seed, arguments.profile)
         print(f"seed {seed}: {score}", file=sys.stderr, flush=True)  # progress
         seconds.append(elapsed)
         voxels.append(size)
         groups["all"].append(score)
+        scored.append((seed, score))
         groups[f"bone {settings['bone']}"].append(score)
         groups[f"bracket {settings['bracket']}"].append(score)
         groups[f"partial volume {settings['partial_volume']}"].append(score)
@@ -102,6 +103,11 @@ def main():
             f"  {seed:4d}: {score.found}/{score.visible}, {score.false}, {score.cut_usable}, {100 * share:.1f} %, "
             f"{score.ipc_on_body}, {score.refused[:90]}"
         )
+    # Not a target, but an IPC of a sliver of the bone registers badly: a cut that took the bone for the body.
+    sparse = [(seed, score) for seed, score in scored if not score.refused and score.coverage < 0.5]
+    print(f"\nCTs whose IPC covers less than half of the bone in view: {len(sparse)}")
+    for seed, score in sparse:
+        print(f"  {seed:4d}: {100 * score.coverage:.0f} % covered, {score.ipc_points} IPC points")
 
 
 if __name__ == "__main__":
