@@ -21,6 +21,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
+from .bracket_stub import bracket_stub
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -335,6 +336,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
+    if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
+        stub = bracket_stub(mask, segmentation.body[box], volume.spacing)
+        if stub.any():
+            mask, other = mask & ~stub, other | stub
+            logger.info("the bracket's stub on the bone (%.0f mm^3) left out", stub.sum() * np.prod(volume.spacing))
     # Other objects (marker spheres, a bracket touching the bone) must not add surface to the IPC, nor their blurred
     # rim where they come within two voxels of the bone.
     by_other = dilate(other, iterations=2) & ~mask if other.any() else None
