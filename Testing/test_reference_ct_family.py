@@ -119,6 +119,7 @@ FULL_PROFILE_HARD = {
     12042: 0.99,  # an ilium's wall behind the hole of a dim 4.8 mm bracket (87 % before the bone's envelope)
     12066: 0.99,  # a flat bone whose cancellous core is above the threshold, a metal bracket resting on it (refused)
     12190: 0.99,  # a tibia's marrow wall behind the hole of a dim 9 mm bracket (79 % before the bone's envelope)
+    13116: 0.99,  # a metal plate round a pocket of air the round field of view closes: its "cortex" outranked the bone
 }
 
 

@@ -47,6 +47,10 @@ MIN_BONE_MM3 = 1500.0
 MIN_HALF_THICKNESS_MM = 2.0
 #: A cortex: the rim at least this much brighter (HU) than the inside.
 CORTEX_CONTRAST_HU = 150.0
+#: ... round an inside brighter than this (HU): an inside of air is a pocket the field of view's edge closes with a
+#: frame or plate (its fill treats that edge as the CT's side), not marrow (family seed 13116: a metal plate's
+#: "cortex" of +3,122 HU round air outranked the bone).
+ENCLOSED_AIR_HU = -900.0
 #: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
 MIN_CORE_MM3 = 100.0
 #: The cortex is looked for this deep (mm) under the object's surface at the threshold, which lies out in the blur
@@ -484,9 +488,9 @@ class _ObjectShape:
 
     def _cortex(self, filled, depth, round_the_inside=False):
         """The rim's brightness (HU, 75th percentile of the cells' maxima) less the inside's (median of the deepest
-        cells' means), None when it has no rim or no inside; ``round_the_inside``: only the rim that surrounds the
-        inside (within its depth and a cell), as a cortex surrounds its marrow, not that of a brighter part joined to
-        a dimmer thick one (a metal frame on a bracket)."""
+        cells' means), None when it has no rim or no inside, or an inside of air (ENCLOSED_AIR_HU);
+        ``round_the_inside``: only the rim that surrounds the inside (within its depth and a cell), as a cortex
+        surrounds its marrow, not that of a brighter part joined to a dimmer thick one (a metal frame on a bracket)."""
         rim = filled & (depth <= max(self.cell.max(), RIM_MM))
         if (rim & ~self.at_edge).any():
             rim &= ~self.at_edge
@@ -495,7 +499,10 @@ class _ObjectShape:
             rim &= self._within(inside, float(depth.max()) + float(self.cell.max()))
         if not rim.any() or not inside.any():
             return None
-        return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
+        inside_hu = float(np.median(self.mean_hu[inside]))
+        if inside_hu < ENCLOSED_AIR_HU:
+            return None
+        return float(np.percentile(self.max_hu[rim], 75) - inside_hu)
 
     def solid_parts(self):
         """[(point (3,) RAS, reach mm)]: where the object is a solid part (a frame, a bracket: no cortex) joined to a
