@@ -47,9 +47,10 @@ MIN_BONE_MM3 = 1500.0
 MIN_HALF_THICKNESS_MM = 2.0
 #: A cortex: the rim at least this much brighter (HU) than the inside.
 CORTEX_CONTRAST_HU = 150.0
-#: ... round an inside brighter than this (HU): an inside of air is a pocket the field of view's edge closes with a
-#: frame or plate (its fill treats that edge as the CT's side), not marrow (family seed 13116: a metal plate's
-#: "cortex" of +3,122 HU round air outranked the bone).
+#: An inside darker than this (HU) is air, not marrow: a pocket the field of view's edge (which the fill takes for
+#: the CT's side) closes with a frame or plate, or a loop of frame, bracket and bone. An object with a cortex round
+#: marrow is taken for the bone before one round air (family seed 13116: a metal plate's "cortex" of +3,122 HU
+#: round air outranked the bone), but one round air is bone still when no other is (13019: a flat bone in a loop).
 ENCLOSED_AIR_HU = -900.0
 #: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
 MIN_CORE_MM3 = 100.0
@@ -78,7 +79,8 @@ MAX_OBJECTS = 12
 @dataclass(frozen=True)
 class ObjectVerdict:
     """What one object was taken for: ``label``, its filled volume (mm^3), half its largest thickness (mm), its
-    cortex contrast (HU, None when it is too thin to tell), how many marker spheres it holds, and ``verdict``."""
+    cortex contrast (HU, None when it is too thin to tell), how many marker spheres it holds, and ``verdict``;
+    ``air_inside``: its filled inside is air (ENCLOSED_AIR_HU), not marrow."""
 
     label: int
     volume_mm3: float
@@ -86,6 +88,7 @@ class ObjectVerdict:
     cortex_hu: float
     spheres: int
     verdict: str
+    air_inside: bool = False
 
     def to_dict(self):
         return {
@@ -220,6 +223,8 @@ def _recognise(volume, segmentation, held, census, reached=()):
         if verdict.verdict.startswith("bone"):
             found.append((verdict, bone, shape))
     with_cortex = [entry for entry in found if entry[0].verdict == "bone"]
+    round_marrow = [entry for entry in with_cortex if not entry[0].air_inside]
+    with_cortex = round_marrow or with_cortex  # a rim round air is bone only when no rim round marrow is found
     warnings = []
     if not with_cortex:
         if not found:
@@ -476,6 +481,8 @@ class _ObjectShape:
         volume = float(filled.sum() * np.prod(self.cell))
         half = float(depth.max()) if filled.any() else 0.0
         cortex = self._cortex(filled, depth)
+        inside = self._inside(filled, depth)
+        air_inside = bool(inside.any() and np.median(self.mean_hu[inside]) < ENCLOSED_AIR_HU)
         if spheres:
             verdict = "reference body"
         elif volume < MIN_BONE_MM3 or half < MIN_HALF_THICKNESS_MM:
@@ -484,25 +491,26 @@ class _ObjectShape:
             verdict = "bone"
         else:
             verdict = "bone without a cortex"
-        return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict)
+        return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict, air_inside)
 
     def _cortex(self, filled, depth, round_the_inside=False):
         """The rim's brightness (HU, 75th percentile of the cells' maxima) less the inside's (median of the deepest
-        cells' means), None when it has no rim or no inside, or an inside of air (ENCLOSED_AIR_HU);
-        ``round_the_inside``: only the rim that surrounds the inside (within its depth and a cell), as a cortex
-        surrounds its marrow, not that of a brighter part joined to a dimmer thick one (a metal frame on a bracket)."""
+        cells' means), None when it has no rim or no inside; ``round_the_inside``: only the rim that surrounds the
+        inside (within its depth and a cell), as a cortex surrounds its marrow, not that of a brighter part joined to
+        a dimmer thick one (a metal frame on a bracket)."""
         rim = filled & (depth <= max(self.cell.max(), RIM_MM))
         if (rim & ~self.at_edge).any():
             rim &= ~self.at_edge
-        inside = filled & (depth >= max(0.6 * float(depth.max()), self.cell.max() * 1.5))
+        inside = self._inside(filled, depth)
         if round_the_inside and inside.any():
             rim &= self._within(inside, float(depth.max()) + float(self.cell.max()))
         if not rim.any() or not inside.any():
             return None
-        inside_hu = float(np.median(self.mean_hu[inside]))
-        if inside_hu < ENCLOSED_AIR_HU:
-            return None
-        return float(np.percentile(self.max_hu[rim], 75) - inside_hu)
+        return float(np.percentile(self.max_hu[rim], 75) - np.median(self.mean_hu[inside]))
+
+    def _inside(self, filled, depth):
+        """The deepest of the ``filled`` cells (at least 60 % of the largest ``depth``, and a cell and a half)."""
+        return filled & (depth >= max(0.6 * float(depth.max()), self.cell.max() * 1.5))
 
     def solid_parts(self):
         """[(point (3,) RAS, reach mm)]: where the object is a solid part (a frame, a bracket: no cortex) joined to a
