@@ -98,13 +98,14 @@ class ObjectVerdict:
             "cortex_hu": self.cortex_hu,
             "reference_body_contacts": self.spheres,
             "verdict": self.verdict,
+            "air_inside": self.air_inside,
         }
 
     def describe(self):
         if self.cortex_hu is None:
             cortex = "no inside to tell a cortex"
         else:
-            cortex = f"rim {self.cortex_hu:+.0f} HU on its inside"
+            cortex = f"rim {self.cortex_hu:+.0f} HU on its inside" + (" (air)" if self.air_inside else "")
         held = f", holds {self.spheres} marker sphere(s)" if self.spheres else ""
         return f"{self.volume_mm3 / 1000.0:.1f} cm^3, {2 * self.half_thickness_mm:.0f} mm thick, {cortex}{held}"
 
