@@ -147,7 +147,7 @@ def test_a_dim_bracket_fixed_into_a_bone_in_air_leaves_no_stub_in_the_ipc(seed):
 def test_a_bone_whose_object_closes_round_air_is_bone_still_when_no_other_is():
     """A flat bone with a metal bracket resting on it and a star frame: the loop they make closes round air, so the
     object's filled inside is air (seed 13019); with no other object round marrow it is the bone all the same (the
-    rule that 13116 needs, a rim round air is no cortex, refused this CT)."""
+    rule first tried for 13116, that a rim round air is no cortex at all, refused this CT)."""
     volume, truth = make_family_ct(13019, "full")
     _, score = run(volume, truth)
     assert not score.refused and score.ipc_on_bone >= 0.99 * score.ipc_points and score.found == score.visible
