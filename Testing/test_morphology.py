@@ -9,6 +9,8 @@ from RAMSICPRegistrationLib.image.morphology import (
     all_ahead,
     any_ahead,
     any_behind,
+    block_any,
+    block_max,
     box_max,
     box_sum,
     dilate,
@@ -88,3 +90,23 @@ def test_labelled_picks_the_chosen_labels_never_the_background():
     labels = np.array([[[0, 1, 2, 3, 3, 0]]])
     np.testing.assert_array_equal(labelled(labels, [0, 3]), [[[False, False, False, True, True, False]]])
     np.testing.assert_array_equal(labelled(labels, []), np.zeros(labels.shape, dtype=bool))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_block_reductions_match_a_loop_over_the_blocks(seed):
+    """``block_max`` drops the partial blocks at the far sides, ``block_any`` keeps them (padded with False)."""
+    for rng, mask in random_masks(seed):
+        block = rng.integers(1, 4, size=3)
+        values = rng.normal(size=mask.shape)
+        kept = np.array(mask.shape) // block
+        expected = np.zeros(kept)
+        for index in np.ndindex(*kept):
+            window = tuple(slice(i * b, (i + 1) * b) for i, b in zip(index, block))
+            expected[index] = values[window].max()
+        np.testing.assert_array_equal(block_max(values, block), expected)
+        covered = -(-np.array(mask.shape) // block)
+        expected_any = np.zeros(covered, dtype=bool)
+        for index in np.ndindex(*covered):
+            window = tuple(slice(i * b, (i + 1) * b) for i, b in zip(index, block))
+            expected_any[index] = mask[window].any()
+        np.testing.assert_array_equal(block_any(mask, block), expected_any)

@@ -31,7 +31,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .morphology import dilate, dilate_by_cube
+from .morphology import block_max, dilate, dilate_by_cube
 from .parallel import in_parallel
 from .sphere_candidates import block_means
 
@@ -322,11 +322,11 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     if (high <= low).any():
         return []
     box = tuple(slice(a, b) for a, b in zip(low, high))
-    brightest = _block_max(segmentation.smoothed[box], block)
+    brightest = block_max(segmentation.smoothed[box], block)
     # Objects above the threshold; specks of noise smaller than an object (a dim frame's, with a noisy CT) are dim.
     is_object = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
     is_object[list(segmentation.object_labels)] = True
-    bright = _block_max(is_object[segmentation.labels[box]], block)
+    bright = block_max(is_object[segmentation.labels[box]], block)
     dim = (brightest >= DIM_BODY_HU) & ~dilate_by_cube(bright)
     regions, _ = ndimage.label(dim)
     # The dim parts that start at a sphere's surface: cells within 2.5 mm beyond it.
@@ -342,7 +342,7 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
     # (Only a small object: a sphere on its post. When the sphere's object is large, bone and body are one object
     # already, and its cells would start the dim parts in the soft tissue round the bone.)
     if own:
-        own_cells = _block_max(np.isin(segmentation.labels[box], own), block)
+        own_cells = block_max(np.isin(segmentation.labels[box], own), block)
         start |= dilate_by_cube(own_cells, 5) & posts  # two cells out, past the rim the bright cells leave out
     linked = np.unique(regions[start & dim])
     sizes = np.bincount(regions.ravel())
@@ -455,9 +455,9 @@ class _ObjectShape:
         self.low, self.high = low, high
         box = tuple(slice(a, b) for a, b in zip(low, high))
         # A cell holds the object when any of its voxels does: a thin cortex stays closed round the marrow.
-        self.mask = _block_max(segmentation.labels[box] == label, self.block)
+        self.mask = block_max(segmentation.labels[box] == label, self.block)
         self.mean_hu = block_means(segmentation.smoothed[box], self.block)
-        self.max_hu = _block_max(segmentation.smoothed[box], self.block)
+        self.max_hu = block_max(segmentation.smoothed[box], self.block)
         # Cells on the CT's sides: where the field of view cuts the object, its rim there is its inside.
         first = segmentation.origin + low
         cells = np.array(self.mask.shape)
@@ -673,7 +673,8 @@ class _ObjectShape:
                 continue
             # No cavity, but a cortex round a dimmer inside above the threshold (a flat bone's cancellous core): the
             # bone going on, not a rod.
-            contrast = self._cortex(rest & ~bone & around, self._depth_of(rest & ~bone & around))
+            beside = rest & ~bone & around
+            contrast = self._cortex(beside, self._depth_of(beside))
             if contrast is None or contrast < CORTEX_CONTRAST_HU:
                 rods |= cells
         return rods
@@ -741,19 +742,6 @@ class _ObjectShape:
     def _volume_ijk_to_ras(self, ijk):
         matrix = self._ijk_to_ras
         return ijk @ matrix[:3, :3].T + matrix[:3, 3]
-
-
-def _block_max(image, block):
-    """Maxima of ``image`` (I, J, K) over blocks of ``block`` (3,) voxels (the edges' partial blocks dropped), a new
-    array. One axis at a time, the first first: each pass reduces whole contiguous rows, several times faster than
-    one reduction over three strided axes of a six-dimensional view."""
-    shape = np.array(image.shape) // block
-    reduced = image[: shape[0] * block[0], : shape[1] * block[1], : shape[2] * block[2]]
-    for axis in range(3):
-        if block[axis] > 1:
-            split = reduced.shape[:axis] + (shape[axis], block[axis]) + reduced.shape[axis + 1 :]
-            reduced = reduced.reshape(split).max(axis=axis + 1)
-    return np.array(reduced) if (np.asarray(block) == 1).all() else reduced
 
 
 def _filled(mask, open_sides=(), padding=None):

@@ -35,8 +35,9 @@ def bracket_stub(mask, body, spacing):
     joined = body & dilate(mask, iterations=2)  # where the body meets the bone (two voxels)
     if not joined.any():
         return stub
-    low = np.maximum(np.argwhere(joined).min(axis=0) - reach, 0)
-    high = np.minimum(np.argwhere(joined).max(axis=0) + reach + 1, mask.shape)
+    where = np.argwhere(joined)
+    low = np.maximum(where.min(axis=0) - reach, 0)
+    high = np.minimum(where.max(axis=0) + reach + 1, mask.shape)
     box = tuple(slice(a, b) for a, b in zip(low, high))
     bone, rest = mask[box], body[box]
     # The bracket's radius where it meets the bone: the depth of the body's voxels near the bone.

@@ -356,14 +356,19 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if between.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
+    # Down the gradient of the surfaced image, from the bone to what is outside it: where the two checks below look.
+    down = (
+        _downhill(image, vertices_ijk, volume.spacing) if level < segmentation.threshold_hu or fill_cavities else None
+    )
     if level < segmentation.threshold_hu:
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
         stub = _on_a_dim_stub(
-            segmentation.smoothed[box], image, vertices_ijk, level, segmentation.threshold_hu, volume.spacing
+            segmentation.smoothed[box], vertices_ijk, down, level, segmentation.threshold_hu, volume.spacing
         )
         if stub.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, stub)
+            down = down[~stub]
             logger.info("%d IPC points on a dim part's stub left out", int(stub.sum()))
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
@@ -378,7 +383,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             envelope = bone_envelope(mask, open_sides, volume.spacing, padding)
             if envelope is not None:
                 bone_and_inside |= envelope
-        inner = _facing_inward(image, vertices_ijk, bone_and_inside, volume.spacing)
+        inner = _facing_inward(vertices_ijk, down, bone_and_inside, volume.spacing)
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
             logger.info("%d IPC points on inner walls left out", int(inner.sum()))
@@ -474,22 +479,22 @@ def _near_padding(padding, vertices, spacing):
 INNER_WALL_MM = 1.5
 
 
-def _facing_inward(image, vertices, mask, spacing):
-    """(M,) booleans: iso-surface vertices (indices in ``image``) whose dimmer side, INNER_WALL_MM away along the
-    gradient, lies in the bone's ``mask`` (its voxels above the threshold and its filled inside)."""
-    down = _downhill(image, vertices, spacing)
+def _facing_inward(vertices, down, mask, spacing):
+    """(M,) booleans: iso-surface vertices (M, 3) (indices in ``mask``'s box) whose dimmer side, INNER_WALL_MM away
+    ``down`` the gradient ((M, 3) unit vectors, ``_downhill``), lies in the bone's ``mask`` (its voxels above the
+    threshold and its filled inside)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
     outside = np.clip(np.rint(vertices + reach * down / spacing).astype(int), 0, np.array(mask.shape) - 1)
     return mask[tuple(outside.T)]
 
 
-def _on_a_dim_stub(original, image, vertices, level, threshold, spacing):
-    """(M,) booleans: iso-surface vertices (indices in ``image``, the CT with what is not the bone's wiped) on a dim
-    part's stub: where the CT as it was (``original``) is still at or above ``level`` INNER_WALL_MM (at least a
-    voxel) down the gradient (the surface only closes off what was wiped), or where nothing reaches the threshold
-    within LOCAL_INSIDE_MM up it (no cortex under the surface: the stub's sides)."""
-    down = _downhill(image, vertices, spacing)
+def _on_a_dim_stub(original, vertices, down, level, threshold, spacing):
+    """(M,) booleans: iso-surface vertices (M, 3) on a dim part's stub, ``down`` ((M, 3), ``_downhill``) the gradient
+    of the image surfaced (the CT with what is not the bone's wiped): where the CT as it was (``original``) is still
+    at or above ``level`` INNER_WALL_MM (at least a voxel) down the gradient (the surface only closes off what was
+    wiped), or where nothing reaches the threshold within LOCAL_INSIDE_MM up it (no cortex under the surface: the
+    stub's sides)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
 
     def at(distance):

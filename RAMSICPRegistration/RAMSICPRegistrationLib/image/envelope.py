@@ -16,7 +16,7 @@ narrower than ``HOLE_MM``, the notch's surface is left out of the IPC, and no po
 import numpy as np
 from scipy import ndimage
 
-from .morphology import dilate_by_cube, labelled
+from .morphology import block_any, dilate_by_cube, labelled
 
 #: Holes in the cortex narrower than this (mm) are plugged (the family's brackets are 4-12 mm wide).
 HOLE_MM = 14.0
@@ -37,7 +37,7 @@ def bone_envelope(mask, open_sides, spacing, padding=None):
     if not open_sides:
         return None
     block = np.maximum(1, np.rint(CELL_MM / np.asarray(spacing, float))).astype(int)
-    cells = _block_any(mask, block)
+    cells = block_any(mask, block)
     width = int(np.rint(HOLE_MM / CELL_MM)) | 1
     # Beyond the box the bone goes on as it crosses the box's side (where the field of view cuts it; elsewhere the
     # box's margin is empty): a closing of the box alone would fill a band along the cut.
@@ -46,7 +46,7 @@ def bone_envelope(mask, open_sides, spacing, padding=None):
     closed = ~dilate_by_cube(~dilate_by_cube(grown, width), width)[inner]
     dark = ~closed
     if padding is not None:
-        dark &= ~_block_any(padding[:, :, None], np.array([block[0], block[1], 1]))
+        dark &= ~block_any(padding[:, :, None], np.array([block[0], block[1], 1]))
     labels, count = ndimage.label(dark)
     outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
     enclosed = closed | labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
@@ -55,17 +55,3 @@ def bone_envelope(mask, open_sides, spacing, padding=None):
     for axis in range(3):
         enclosed = np.repeat(enclosed, block[axis], axis=axis)
     return mask | enclosed[: mask.shape[0], : mask.shape[1], : mask.shape[2]]
-
-
-def _block_any(mask, block):
-    """(ceil(I / b0), ceil(J / b1), ceil(K / b2)) booleans: whether any voxel of each block of ``mask`` is set (the
-    partial blocks at the far sides included)."""
-    shape = -(-np.array(mask.shape) // block) * block
-    padded = np.zeros(shape, dtype=bool)
-    padded[: mask.shape[0], : mask.shape[1], : mask.shape[2]] = mask
-    reduced = padded
-    for axis in range(3):
-        if block[axis] > 1:
-            split = reduced.shape[:axis] + (shape[axis] // block[axis], block[axis]) + reduced.shape[axis + 1 :]
-            reduced = reduced.reshape(split).any(axis=axis + 1)
-    return reduced

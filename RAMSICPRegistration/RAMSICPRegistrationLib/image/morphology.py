@@ -81,6 +81,28 @@ def _box_filter(mask, size, combine):
     return mask
 
 
+def block_max(image, block):
+    """Maxima of ``image`` (I, J, K) over blocks of ``block`` (3,) voxels (the edges' partial blocks dropped), a new
+    array. One axis at a time, the first first: each pass reduces whole contiguous rows, several times faster than
+    one reduction over three strided axes of a six-dimensional view."""
+    shape = np.array(image.shape) // block
+    reduced = image[: shape[0] * block[0], : shape[1] * block[1], : shape[2] * block[2]]
+    for axis in range(3):
+        if block[axis] > 1:
+            split = reduced.shape[:axis] + (shape[axis], block[axis]) + reduced.shape[axis + 1 :]
+            reduced = reduced.reshape(split).max(axis=axis + 1)
+    return np.array(reduced) if (np.asarray(block) == 1).all() else reduced
+
+
+def block_any(mask, block):
+    """(ceil(I / b0), ceil(J / b1), ceil(K / b2)) booleans: whether any voxel of each block of ``block`` (3,) voxels of
+    ``mask`` is set, the partial blocks at the far sides included (``block_max`` of the mask padded with False)."""
+    shape = -(-np.array(mask.shape) // np.asarray(block)) * np.asarray(block)
+    padded = np.zeros(shape, dtype=bool)
+    padded[: mask.shape[0], : mask.shape[1], : mask.shape[2]] = mask
+    return block_max(padded, block)
+
+
 def labelled(labels, chosen):
     """Booleans of ``labels``'s shape: the voxels whose label (from ``ndimage.label``) is one of ``chosen``; 0 (the
     background) never. A look-up table: ``np.isin`` sorts, twice as slow on a bone's box."""
