@@ -144,6 +144,27 @@ def test_a_dim_bracket_fixed_into_a_bone_in_air_leaves_no_stub_in_the_ipc(seed):
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.95
 
 
+def test_spheres_sunk_into_a_brighter_plate_still_say_where_the_body_is():
+    """Spheres of 690 HU sunk into a 5 mm plate of 1,900 HU (the generator calls all four hidden), the plate joined to
+    a tibia by a metal bracket: no sphere fits, so nothing said where the body was, and the IPC was the plate's
+    (45,355 of its 54,154 points). Where the body is a ball thick (``image.thick_spots``) and the tool's distances
+    pair four such spots, the body is cut off: no IPC point on it."""
+    volume, truth = make_family_ct(14087, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone >= 0.99 * score.ipc_points
+
+
+def test_a_dim_frame_split_by_specks_above_the_threshold_still_leads_to_its_bracket():
+    """Plastic spheres (165 HU), posts and a ring frame (185 HU) all below the threshold, with noise specks above it
+    that split the frame's dim parts, and a 303 HU bracket inserted into a flat bone: the dim parts from the spheres
+    reached the specks but not the bracket, which stayed on the bone (2,916 IPC points on it). The dim parts start
+    from the objects the posts stand on too now."""
+    volume, truth = make_family_ct(14053, "full")
+    _, score = run(volume, truth)
+    assert score.found == score.visible == 4 and score.ipc_on_body == 0
+    assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.9
+
+
 def test_a_bone_whose_object_closes_round_air_is_bone_still_when_no_other_is():
     """A flat bone with a metal bracket resting on it and a star frame: the loop they make closes round air, so the
     object's filled inside is air (seed 13019); with no other object round marrow it is the bone all the same (the

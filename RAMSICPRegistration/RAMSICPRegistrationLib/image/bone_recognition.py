@@ -258,9 +258,12 @@ def _body_seeds(volume, segmentation, spheres, census, dim_links=True):
         for label in np.unique(local[inside]):
             if label > 0:
                 seeds[int(label)].append((sphere.centre, reach))
-    holding = [label for label, held in seeds.items() if held]  # the spheres' objects (theirs, or their posts')
+    feet = _post_feet(volume, segmentation, spheres)
+    # The spheres' objects (theirs, or their posts'), and those their posts stand on (a dim frame's specks above the
+    # threshold split its dim parts: the dim parts start from each of them too).
+    holding = [label for label, held in seeds.items() if held] + [label for label, _ in feet]
     links = _dim_links(volume, segmentation, spheres, census.sizes, holding) if dim_links else []
-    for label, point in links + _post_feet(volume, segmentation, spheres):
+    for label, point in links + feet:
         seeds[label].append((point, 1.0))
     return seeds
 

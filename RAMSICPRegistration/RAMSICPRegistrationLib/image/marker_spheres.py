@@ -42,6 +42,7 @@ from scipy import ndimage, optimize
 from ..core.marker_geometry import PAIRING_TOLERANCE_MM, pair_by_geometry
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .sphere_candidates import find_sphere_candidates
+from .thick_spots import thick_spots
 
 logger = logging.getLogger(__name__)
 
@@ -203,6 +204,9 @@ def detect_marker_spheres(volume, segmentation, expected=4, diameter_mm=MARKER_D
             tied = _tied_by_tool_distances(found, tool_markers) or _candidates_at_tool_distances(
                 volume, segmentation, [candidate.centre for candidate in candidates], tool_markers, radius
             )
+            if not tied:  # spheres sunk into a frame brighter than they are: where the body is a ball thick
+                spots = list(thick_spots(volume, segmentation, radius))
+                tied = _candidates_at_tool_distances(volume, segmentation, spots, tool_markers, radius)
     warnings = [sphere_warning(sphere) for sphere in spheres if sphere.status != "ok"] + warnings
     good = sum(sphere.status == "ok" and (tool_markers is None or sphere.number > 0) for sphere in spheres)
     if tool_markers is None and len(spheres) != expected:
