@@ -165,6 +165,19 @@ def test_a_dim_frame_split_by_specks_above_the_threshold_still_leads_to_its_brac
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.9
 
 
+@pytest.mark.parametrize("seed", [15036, 15065])
+def test_a_flat_bone_whose_inside_is_nearly_as_bright_as_its_cortex_is_cut_off_its_bracket(seed):
+    """Flat bones whose cancellous inside (486 and 576 HU) is nearly as bright as their cortex (719 and 741 HU): a rim
+    of +112 and +89 HU, under the +150 HU that makes a cortex. Cut off the bracket, the bone's part was no cortex and
+    the cut was dropped (15065: 1,341 IPC points on a 1,125 HU bracket); where the cut stood, each piece growing out of
+    the bone looked like a rod (no cortex either) and was set apart (15036: 8 % of the bone kept). A part cut off whose
+    rim is brighter than a solid part's is bone (when no object has a cortex), and a piece whose rim is four fifths of
+    the bone's own is the bone going on."""
+    volume, truth = make_family_ct(seed, "full")
+    _, score = run(volume, truth)
+    assert score.ipc_on_body == 0 and score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.9
+
+
 def test_a_bone_whose_object_closes_round_air_is_bone_still_when_no_other_is():
     """A flat bone with a metal bracket resting on it and a star frame: the loop they make closes round air, so the
     object's filled inside is air (seed 13019); with no other object round marrow it is the bone all the same (the

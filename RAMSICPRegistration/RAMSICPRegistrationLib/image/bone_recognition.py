@@ -18,7 +18,9 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
    inside). The largest such object is the bone. If none has a cortex, the largest thick one without spheres is
-   taken, with a warning; if there is none at all, ``ValueError`` says what was found and what to do.
+   taken, with a warning (or the part a cut took off the body, if its rim is brighter than a solid part's: a flat
+   bone whose cancellous inside is nearly as bright as its cortex); if there is none at all, ``ValueError`` says
+   what was found and what to do.
 
 Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised CT), which the cut's margin covers.
 """
@@ -607,7 +609,7 @@ class _ObjectShape:
                 # A thin bone's core, opened back, holds little of it (the smaller openings grow it): a quarter of
                 # the smallest bone will do, unless the part is solid (a frame's far corner, not bone).
                 if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3 / 4.0 and not self._solid(opened):
-                    found = (opening, part, opened, None)
+                    found = (opening, part, opened, self._cortex(opened, self._depth_of(opened)))
                     break
             if found:
                 break
@@ -616,12 +618,13 @@ class _ObjectShape:
         # Smaller openings keep more of the bone (its thinner parts), until its core reaches the body. A rod its
         # core grows out of the bone kept so far is the bracket: it is set apart (with the opening's reach round
         # it), and the descent goes on without it, so a thin bone the bracket is fixed into is kept too.
-        kept, core_kept, bone, _ = found
+        kept, core_kept, bone, own_contrast = found
+        bone_going_on = _bone_going_on(own_contrast)
         apart = np.zeros(rest.shape, dtype=bool)
         margin = 0.0
         for opening in [r for r in OPENING_RADII_MM[::-1] if r < kept]:
             part = self._core_through(depth >= opening, core_kept, apart)
-            rods = self._rods(part, bone, rest & ~apart, near_sphere, opening)
+            rods = self._rods(part, bone, rest & ~apart, near_sphere, opening, bone_going_on)
             if rods.any():
                 apart |= self._within(rods, opening + self.cell.max())
                 margin = max(margin, opening)
@@ -632,7 +635,7 @@ class _ObjectShape:
             bone = rest & ~apart & self._within(part, opening)
         bone = self._with_thin_bits(bone, rest & ~apart, near_sphere | apart)
         verdict = self.verdict(0, bone, self._depth_of(bone))
-        if verdict.verdict != "bone":  # cut from the body, only a part with a cortex is taken for bone
+        if not _bone_cut_off(verdict):
             return self.verdict(len(seeds)), None
         if no_bone_on_body and self._bone_like(rest & ~bone):
             # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), and the cut
@@ -652,7 +655,7 @@ class _ObjectShape:
         overlap[0] = 0
         return labels == overlap.argmax() if overlap.max() > 0 else np.zeros(cores.shape, dtype=bool)
 
-    def _rods(self, core, bone, rest, body, opening):
+    def _rods(self, core, bone, rest, body, opening, bone_going_on=CORTEX_CONTRAST_HU):
         """The cells of ``core`` that leave ``bone`` (cells) as the bracket: pieces crossing the band ROD_FROM_MM to
         ROD_TO_MM from the bone that lead through ``rest`` outside the bone to the ``body`` (cells by the spheres and
         the posts' feet) and are solid (a thin shaft of the bone itself that the bracket is fixed into has its
@@ -678,7 +681,7 @@ class _ObjectShape:
             # bone going on, not a rod.
             beside = rest & ~bone & around
             contrast = self._cortex(beside, self._depth_of(beside))
-            if contrast is None or contrast < CORTEX_CONTRAST_HU:
+            if contrast is None or contrast < bone_going_on:
                 rods |= cells
         return rods
 
@@ -764,6 +767,25 @@ def _filled(mask, open_sides=(), padding=None):
         outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
         filled |= (holes > 0) & ~np.isin(holes, outside)
     return filled
+
+
+def _bone_going_on(contrast):
+    """The rim contrast (HU) a piece growing out of the bone must have to be the bone going on, not a rod: a cortex
+    (CORTEX_CONTRAST_HU), or, on a bone whose own rim is dimmer (``contrast``: a flat bone whose cancellous inside is
+    nearly as bright as its cortex, +110 HU, family seed 15036), four fifths of its own, and more than a solid part's
+    (SOLID_CONTRAST_HU)."""
+    if contrast is None:
+        return CORTEX_CONTRAST_HU
+    return min(CORTEX_CONTRAST_HU, max(SOLID_CONTRAST_HU, 0.8 * contrast))
+
+
+def _bone_cut_off(verdict):
+    """True when the part a cut took off the body is bone: it has a cortex, or a rim brighter than its inside by more
+    than a solid part's (SOLID_CONTRAST_HU: a flat bone whose cancellous inside is nearly as bright as its cortex,
+    +89 HU, family seed 15065); such a part is taken for the bone only when no object has a cortex, with a warning."""
+    if verdict.verdict == "bone":
+        return True
+    return verdict.verdict == "bone without a cortex" and (verdict.cortex_hu or 0.0) >= SOLID_CONTRAST_HU
 
 
 def _may_hold_a_body(shape, seeds):

@@ -28,7 +28,10 @@ spheres, plates the spheres touch, brackets that join the frame to the bone, and
 4. **Pairing with the tool** (``core.marker_geometry.pair_by_geometry``): the tool's inter-marker distances choose
    its markers among the spheres found and number them; a sphere that fits no marker (a spare sphere, a round
    bone feature) is left unnumbered; a marker not found is located where the others put it
-   (``MarkerDetection.missing``), and said to be inside or outside the field of view.
+   (``MarkerDetection.missing``), and said to be inside or outside the field of view. When no sphere pairs, the
+   candidates, and then the spots where the body is a ball thick (``thick_spots``: spheres sunk into a brighter
+   frame), that the tool's distances pair say where the reference body is (``MarkerDetection.tied``, status
+   'hidden': for the bone's recognition only, never usable).
 
 Only ``ok`` spheres paired with a marker feed the coarse registration unless the user accepts the others.
 """
