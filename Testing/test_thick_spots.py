@@ -39,7 +39,7 @@ def test_spheres_sunk_into_a_brighter_plate_are_found_and_nothing_else(spacing):
     assert distances.min(axis=1).max() < 1.0  # within the tool's pairing tolerance (2 mm) with room to spare
 
 
-def test_nothing_above_the_threshold_no_spot():
+def test_a_speck_above_the_threshold_is_no_spot():
     volume = CTVolume(np.full((20, 20, 20), -1000.0, dtype=np.float32), np.eye(4))
     volume.voxels[5:8, 5:8, 5:8] = 400.0  # a speck: some object, no ball
     assert thick_spots(volume, threshold_ct(volume), RADIUS_MM).shape == (0, 3)

@@ -547,7 +547,7 @@ class _ObjectShape:
             if len(big) < 2:
                 continue
             contrasts = in_parallel(*[partial(self._core_contrast, cores == core, opening) for core in big])
-            solid = [core for core, c in zip(big, contrasts) if c is not None and c < SOLID_CONTRAST_HU]
+            solid = [core for core, c in zip(big, contrasts) if _is_solid(c)]
             if not solid or not any(c is not None and c >= CORTEX_CONTRAST_HU for c in contrasts):
                 continue
             cells = self._cell_centres_ras()
@@ -573,11 +573,6 @@ class _ObjectShape:
             return False
         contrast = self._cortex(cells, self._depth_of(cells), round_the_inside=True)
         return contrast is not None and contrast >= CORTEX_CONTRAST_HU
-
-    def _solid(self, cells):
-        """True when ``cells`` have a rim no brighter than their inside (by less than SOLID_CONTRAST_HU)."""
-        contrast = self._cortex(cells, self._depth_of(cells))
-        return contrast is not None and contrast < SOLID_CONTRAST_HU
 
     def cut_off_body(self, seeds, no_bone_on_body=False):
         """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``
@@ -608,8 +603,11 @@ class _ObjectShape:
                 opened = rest & self._within(part, opening)
                 # A thin bone's core, opened back, holds little of it (the smaller openings grow it): a quarter of
                 # the smallest bone will do, unless the part is solid (a frame's far corner, not bone).
-                if opened.sum() * np.prod(self.cell) >= MIN_BONE_MM3 / 4.0 and not self._solid(opened):
-                    found = (opening, part, opened, self._cortex(opened, self._depth_of(opened)))
+                if opened.sum() * np.prod(self.cell) < MIN_BONE_MM3 / 4.0:
+                    continue
+                contrast = self._cortex(opened, self._depth_of(opened))
+                if not _is_solid(contrast):
+                    found = (opening, part, opened, contrast)
                     break
             if found:
                 break
@@ -767,6 +765,12 @@ def _filled(mask, open_sides=(), padding=None):
         outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
         filled |= (holes > 0) & ~np.isin(holes, outside)
     return filled
+
+
+def _is_solid(contrast):
+    """True when a rim ``contrast`` (HU, ``_ObjectShape._cortex``; None without a rim or an inside) is a solid
+    part's: a rim no brighter than its inside (by less than SOLID_CONTRAST_HU)."""
+    return contrast is not None and contrast < SOLID_CONTRAST_HU
 
 
 def _bone_going_on(contrast):
