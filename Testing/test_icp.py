@@ -110,6 +110,26 @@ def test_range_matching_equals_brute_force(ellipsoid, scale, rng):
     np.testing.assert_array_equal(ranges.matcher(scale)(moving), expected)
 
 
+@pytest.mark.parametrize("scale", [1.0, 2.6, 5.0])
+def test_points_in_the_air_moved_far_match_as_by_brute_force(ellipsoid, scale, rng):
+    """Points 30-80 mm off the surface (touched in the air: k_i up to 400 mm), moved 0-40 mm by the fine step or
+    through the bone: the ranges keep only D_i + 20 mm of candidates and search farther when a point moved over
+    10 mm; the matches are those of the whole range all the same."""
+    points, index = ellipsoid
+    directions = rng.normal(size=(40, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    centres = directions * rng.uniform(30.0, 80.0, size=(40, 1)) * np.array([2.0, 1.5, 1.0])
+    moves = rng.normal(size=(40, 3))
+    moving = centres + moves / np.linalg.norm(moves, axis=1, keepdims=True) * rng.uniform(0.0, 40.0, size=(40, 1))
+    moving[:10] = -0.3 * centres[:10]  # moved through the bone: their closest IPC points are on the far side
+    ranges = MatchingRanges(index, centres, max_scale=5.0)
+    match = ranges.matcher(scale)
+    expected = _brute_force_match(points, centres, scale, moving, min_radius_mm=0.1)
+    np.testing.assert_array_equal(match(moving), expected)
+    np.testing.assert_array_equal(match(moving), expected)  # again, from the longer lists kept the first time
+    assert ranges.counts(ranges.radii(5.0)).max() < len(points)
+
+
 def test_range_is_inclusive_and_grows_with_scale():
     # The CR point sits at the origin; IPC points at 1, 1.5, 2 and 3 mm: D = 1 mm.
     ipc = np.array([[1.0, 0.0, 0.0], [0.0, 1.5, 0.0], [0.0, 0.0, 2.0], [-3.0, 0.0, 0.0]])

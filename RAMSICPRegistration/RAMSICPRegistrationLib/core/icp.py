@@ -39,6 +39,9 @@ DEFAULT_MIN_RADIUS_MM = 0.1
 #: points a millimetre off the surface already reach 20 mm, and one ball query at L = 10^6 over a 200,000-point IPC
 #: takes 1.1 GB (measured).
 MAX_SCALE = 20.0
+#: The matching ranges keep the IPC points within D_i + this (mm) of a point's CR position (``MatchingRanges``): the
+#: best match lies there unless the fine step moves the point over half of it, when it is searched afresh.
+STORED_REACH_MM = 20.0
 #: Relative slack on the inclusive range test, so that the closest point at exactly D_i stays inside.
 _RANGE_SLACK = 1e-9
 
@@ -71,8 +74,13 @@ class FineResult:
 class MatchingRanges:
     """The matching ranges of eqs. 6-8 for one set of CR-aligned points, for every L up to ``max_scale``.
 
-    One KD-tree ball query at the largest radius serves a whole sweep: the candidates of each point are kept
-    sorted by their distance from its CR position, so the range for any smaller L is a prefix of that list.
+    One KD-tree ball query serves a whole sweep: the candidates of each point are kept sorted by their distance from
+    its CR position, so the range for any smaller L is a prefix of that list. The best match of a moving point ``m``
+    lies within ``D_i + 2 |m - CR x_i|`` of its CR position (the closest IPC point to ``CR x_i``, always in range, is
+    within ``D_i + |m - CR x_i|`` of ``m``), so only that prefix is searched, and the lists stop at
+    ``D_i + STORED_REACH_MM``: a point touched 60 mm off the bone (D_i = 60, k_i = 300 mm at L = 5) keeps the IPC
+    points 60-80 mm away, not the whole IPC. A point the fine step moves farther than the stored list reaches is
+    searched afresh. The matches are those of the whole range (``Testing/test_icp.py`` checks by brute force).
     """
 
     def __init__(self, index, cr_points, max_scale, min_radius_mm=DEFAULT_MIN_RADIUS_MM):
@@ -81,8 +89,10 @@ class MatchingRanges:
         self.centres = cr_points
         self.min_radius_mm = float(min_radius_mm)
         self.closest_distance_mm, self.closest_indices = index.nearest(cr_points)  # D_i (eq. 8)
-        largest = self.radii(max_scale)
-        neighbour_lists = index.tree.query_ball_point(cr_points, largest)
+        self._largest = self.radii(max_scale)
+        self._stored = np.minimum(self._largest, self.closest_distance_mm + STORED_REACH_MM)
+        self._wider, self._wider_radius = {}, {}  # point: its candidates farther than stored (``_search_afresh``)
+        neighbour_lists = index.tree.query_ball_point(cr_points, self._stored)
         counts = np.array([len(neighbours) for neighbours in neighbour_lists])
         candidates = np.fromiter((i for n in neighbour_lists for i in n), dtype=np.intp, count=counts.sum())
         owner = np.repeat(np.arange(len(cr_points)), counts)
@@ -91,6 +101,7 @@ class MatchingRanges:
         self._candidates = candidates[order]
         self._distances = distances[order]
         self._owner = owner[order]
+        self._counts = counts
         self._starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
         if (counts == 0).any():  # cannot happen: the closest point is always inside the largest ball
             raise RuntimeError("a matching range came out empty; please report this with the input points")
@@ -102,7 +113,8 @@ class MatchingRanges:
         return radii * (1.0 + _RANGE_SLACK) + 1e-12
 
     def counts(self, radii):
-        """Number of candidates of each point inside ``radii`` (N,); each list is sorted, so this is a prefix."""
+        """Number of candidates of each point inside ``radii`` (N,), up to the ``D_i + STORED_REACH_MM`` stored;
+        each list is sorted, so this is a prefix."""
         inside = self._distances <= radii[self._owner]
         return np.add.reduceat(inside, self._starts)
 
@@ -112,7 +124,6 @@ class MatchingRanges:
         if scale > self.max_scale * (1.0 + _RANGE_SLACK):
             raise ValueError(f"scale {scale} is above the {self.max_scale} these ranges were built for")
         radii = self.radii(scale)
-        counts = self.counts(radii)
         points = self.index.points
 
         def match(moving):
@@ -120,20 +131,48 @@ class MatchingRanges:
             inside = np.linalg.norm(points[nearest] - self.centres, axis=1) <= radii
             if inside.all():
                 return nearest
-            # The globally closest point lies outside this point's range: search its own range instead.
+            # The globally closest point lies outside this point's range: search its own range instead, as far
+            # as the best match can lie (the class docstring).
             outside = np.flatnonzero(~inside)
-            lengths = counts[outside]
+            shift = np.linalg.norm(moving[outside] - self.centres[outside], axis=1)
+            reach = np.minimum(radii[outside], (self.closest_distance_mm[outside] + 2.0 * shift) * (1.0 + 1e-9) + 1e-9)
+            nearest = nearest.copy()
+            fresh = reach > self._stored[outside]
+            for point, radius in zip(outside[fresh], reach[fresh]):
+                nearest[point] = self._search_afresh(moving[point], point, radius)
+            outside, reach = outside[~fresh], reach[~fresh]
+            if not outside.size:
+                return nearest
+            lengths = np.array(
+                [
+                    np.searchsorted(self._distances[start : start + count], radius, side="right")
+                    for start, count, radius in zip(self._starts[outside], self._counts[outside], reach)
+                ]
+            )
             owner_local = np.repeat(np.arange(outside.size), lengths)
             first_local = np.concatenate(([0], np.cumsum(lengths)[:-1]))
             flat = np.repeat(self._starts[outside] - first_local, lengths) + np.arange(lengths.sum())
             candidate_ids = self._candidates[flat]
             squared = np.sum((points[candidate_ids] - moving[outside][owner_local]) ** 2, axis=1)
             best = np.lexsort((squared, owner_local))[first_local]
-            nearest = nearest.copy()
             nearest[outside] = candidate_ids[best]
             return nearest
 
         return match
+
+    def _search_afresh(self, moving_point, point, radius):
+        """The IPC point closest to ``moving_point`` (3,) within ``radius`` mm of point ``point``'s CR position,
+        from a longer list of its candidates, kept for the next iterations and scales (grown by half as needed)."""
+        if self._wider_radius.get(point, 0.0) < radius:
+            wider = min(1.5 * radius, self._largest[point])
+            ids = np.asarray(self.index.tree.query_ball_point(self.centres[point], wider), dtype=np.intp)
+            distances = np.linalg.norm(self.index.points[ids] - self.centres[point], axis=1)
+            order = np.argsort(distances, kind="stable")
+            ids, distances = ids[order], distances[order]
+            self._wider[point], self._wider_radius[point] = (ids, distances), wider
+        ids, distances = self._wider[point]
+        ids = ids[: np.searchsorted(distances, radius, side="right")]
+        return int(ids[np.argmin(np.sum((self.index.points[ids] - moving_point) ** 2, axis=1))])
 
 
 def icp(
