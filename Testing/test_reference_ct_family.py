@@ -18,9 +18,12 @@ from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
     make_reference_body_phantom,
 )
 from RAMSICPRegistrationLib.simulation.reference_ct_family import (
+    FamilyTruth,
+    FieldOfView,
     make_family_ct,
     score_image_side,
 )
+from RAMSICPRegistrationLib.simulation.solids import Capsule
 
 #: The first seeds of the family (not chosen).
 SEEDS = range(24)
@@ -269,6 +272,30 @@ def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     order = np.array(written.numbers) - 1
     np.testing.assert_allclose(written.points, truth.marker_centres[order], atol=0.05)
     assert not (tmp_path / "ipc.vtp").exists()
+
+
+def test_a_refusal_is_right_only_when_the_bone_in_view_is_too_small_to_be_bone():
+    """The benchmark judges a refusal by the bone inside the field of view: a capsule of radius 5 mm and 20 mm of
+    cylinder holds pi 25 (20 + 20/3) mm^3 = 2,094 mm^3 (over the 1,500 of the smallest bone: a wrong refusal); with
+    the reconstruction cylinder's edge through its axis, half of it (a right one)."""
+    spacing = 0.5
+    ijk_to_ras = np.diag([spacing, spacing, spacing, 1.0])
+    shape = (80, 80, 80)  # 0-39.5 mm each way
+    volume = CTVolume(np.full(shape, -1000, dtype=np.int16), ijk_to_ras)
+    bone = Capsule(np.array([20.3, 19.6, 10.2]), np.array([20.3, 19.6, 30.2]), 5.0)  # off the 1 mm grid
+
+    def truth(field_of_view):
+        return FamilyTruth("8700339", None, None, 5.75, (), bone, None, None, field_of_view, {})
+
+    whole = truth(FieldOfView(ijk_to_ras, shape))
+    expected = np.pi * 25.0 * (20.0 + 20.0 / 3.0)
+    assert whole.bone_in_view_mm3(volume) == pytest.approx(expected, rel=0.03)
+    half = truth(FieldOfView(ijk_to_ras, shape, cylinder_centre_ij=(40.6 + 60.0, 39.2), cylinder_radius_mm=30.0))
+    assert half.bone_in_view_mm3(volume) == pytest.approx(expected / 2.0, rel=0.05)
+    refused = "no object in the CT's field of view is plausibly bone"
+    assert not score_image_side(volume, whole, None, refused).rightly_refused
+    assert score_image_side(volume, half, None, refused).rightly_refused
+    assert not score_image_side(volume, half, None, "").rightly_refused
 
 
 def test_overrides_force_one_choice_and_leave_the_others():

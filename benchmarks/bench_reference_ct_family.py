@@ -8,7 +8,8 @@ side runs on it with the drawn tool's geometry, and the result is scored against
   usable (target 0); visible spheres in CTs with fewer than 3 of the tool's spheres in view cannot be numbered by
   the tool's distances and are counted apart (unpairable);
 * IPC: the share of its points within 0.5 mm of the true bone surface (target >= 99 %), those on the reference
-  body or its bracket (target 0), and how much of the bone surface in view it covers; CTs refused.
+  body or its bracket (target 0), and how much of the bone surface in view it covers; CTs refused, and of them
+  those rightly refused (less bone in the field of view than the smallest object taken for bone, 1.5 cm^3).
 
 Rows by kind of CT (bone, bracket, partial-volume model) show where the misses are. Run:
 python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full]
@@ -45,13 +46,15 @@ def run_seed(seed, profile):
 def table_row(name, scores):
     total = {field: sum(getattr(score, field) for score in scores) for field in FIELDS}
     refused = sum(bool(score.refused) for score in scores)
+    rightly = sum(score.rightly_refused for score in scores)
     coverage = np.mean([score.coverage for score in scores if not score.refused]) if len(scores) > refused else 0.0
     clean = sum(score.ipc_on_bone >= 0.99 * score.ipc_points and not score.refused for score in scores)
     return (
         f"{name:<28} {len(scores):>5} {total['found']:>5}/{total['visible']:<5} "
         f"{100 * total['found'] / max(total['visible'], 1):6.1f} {total['false']:>5} "
         f"{total['cut_usable']:>3}/{total['cut']:<4} {100 * total['ipc_on_bone'] / max(total['ipc_points'], 1):7.2f} "
-        f"{total['ipc_on_body']:>8} {100 * clean / len(scores):6.1f} {100 * coverage:6.1f} {refused:>4} "
+        f"{total['ipc_on_body']:>8} {100 * clean / len(scores):6.1f} {100 * coverage:6.1f} "
+        f"{f'{refused}({rightly})':>7} "
         f"{total['unpairable']:>5}"
     )
 
@@ -82,13 +85,13 @@ def main():
             score.found < score.visible
             or score.false
             or score.cut_usable
-            or score.refused
+            or (score.refused and not score.rightly_refused)
             or (score.ipc_on_bone < 0.99 * score.ipc_points or score.ipc_on_body)
         ):
             misses.append((seed, score))
     print(
         f"\n{'CTs':<28} {'n':>5} {'found/visible':>11} {'%':>6} {'false':>5} {'cut used':>8} {'IPC %on':>7} "
-        f"{'on body':>8} {'%CT>=99':>6} {'cover%':>6} {'ref':>4} {'unpair':>5}"
+        f"{'on body':>8} {'%CT>=99':>6} {'cover%':>6} {'ref(ok)':>7} {'unpair':>5}"
     )
     for name in sorted(groups, key=lambda name: (name != "all", name)):
         print(table_row(name, groups[name]))
@@ -103,6 +106,10 @@ def main():
             f"  {seed:4d}: {score.found}/{score.visible}, {score.false}, {score.cut_usable}, {100 * share:.1f} %, "
             f"{score.ipc_on_body}, {score.refused[:90]}"
         )
+    right = [(seed, score) for seed, score in scored if score.rightly_refused]
+    print(f"\nCTs rightly refused (under 1.5 cm^3 of bone in the field of view): {len(right)}")
+    for seed, score in right:
+        print(f"  {seed:4d}: {score.bone_in_view_mm3 / 1000:.2f} cm^3 of bone in view, {score.refused[:90]}")
     # Not a target, but an IPC of a sliver of the bone registers badly: a cut that took the bone for the body.
     sparse = [(seed, score) for seed, score in scored if not score.refused and score.coverage < 0.5]
     print(f"\nCTs whose IPC covers less than half of the bone in view: {len(sparse)}")

@@ -138,6 +138,21 @@ class FamilyTruth:
         """(N,) signed distance (mm) of RAS points to the reference body with its bracket (negative inside)."""
         return self.body.signed_distance(np.asarray(points, float))
 
+    def bone_in_view_mm3(self, volume, step_mm=1.0):
+        """Volume (mm^3) of the bone inside the field of view (the box and, with one, the reconstruction cylinder),
+        counted on a grid of cells about ``step_mm`` wide: what a refusal is judged by (a bone under
+        ``bone_recognition.MIN_BONE_MM3`` in view is rightly refused)."""
+        step = np.maximum(1, np.round(step_mm / volume.spacing)).astype(int)
+        grid = np.stack(np.meshgrid(*[np.arange(0, n, s) for n, s in zip(volume.voxels.shape, step)], indexing="ij"))
+        points = volume.ijk_to_ras_points(grid.reshape(3, -1).T)
+        if isinstance(self.bone, MeshSolid):  # the stencil: a mesh's signed distance over a grid takes minutes
+            whole = tuple(slice(0, n) for n in volume.voxels.shape)
+            inside = self.bone.inside_on_grid(volume, whole)[tuple(slice(None, None, s) for s in step)].ravel()
+        else:
+            inside = self.bone.signed_distance(points) < 0.0
+        inside &= self.field_of_view.clearance(points) > 0
+        return float(inside.sum() * np.prod(step * volume.spacing))
+
     def bone_surface_points(self, volume, spacing_mm=1.0):
         """(N, 3) points on the true bone surface inside the field of view, about ``spacing_mm`` apart."""
         if isinstance(self.bone, MeshSolid):
@@ -594,6 +609,7 @@ class FamilyScore:
         coverage: fraction of the true bone surface in view (3 mm or more from the body) with an IPC point
             within 1 mm (metal zones and the ring round a bracket are left out of the IPC on purpose).
         refused: the image side's refusal message, or ''.
+        bone_in_view_mm3: with a refusal, the bone's volume inside the field of view (``rightly_refused``).
     """
 
     visible: int
@@ -607,6 +623,15 @@ class FamilyScore:
     coverage: float
     refused: str = ""
     unpairable: int = 0
+    bone_in_view_mm3: float = float("nan")
+
+    @property
+    def rightly_refused(self):
+        """A refusal where the bone inside the field of view is smaller than any object taken for bone
+        (``bone_recognition.MIN_BONE_MM3``): no bone to give a surface of."""
+        from ..image.bone_recognition import MIN_BONE_MM3
+
+        return bool(self.refused) and self.bone_in_view_mm3 < MIN_BONE_MM3
 
 
 def score_image_side(volume, truth, image=None, refused="", usable=()):
@@ -628,8 +653,9 @@ def score_image_side(volume, truth, image=None, refused="", usable=()):
             false += 1
         cut_usable += bool(cut[sphere.number - 1])
     if image is None:
+        bone_mm3 = truth.bone_in_view_mm3(volume) if refused else float("nan")
         return FamilyScore(
-            int(visible.sum()), found, false, int(cut.sum()), cut_usable, 0, 0, 0, 0.0, refused, unpairable
+            int(visible.sum()), found, false, int(cut.sum()), cut_usable, 0, 0, 0, 0.0, refused, unpairable, bone_mm3
         )
     points = image.surface.points
     on_bone = truth.bone_distance(points) <= ON_BONE_MM
