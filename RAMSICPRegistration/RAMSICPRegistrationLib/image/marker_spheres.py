@@ -394,7 +394,7 @@ def _fit_candidate(volume, segmentation, centre, radius):
         if np.linalg.norm(centre - previous) < 0.005:
             break  # the rays from the new centre would find the same edges
     inliers = points[keep]
-    coverage = _coverage(inliers - centre)
+    coverage = direction_coverage(inliers - centre)
     if coverage < MIN_COVERAGE:
         return None
     off_sphere, missing = 1.0 - float(keep.mean()), float(hollow.mean())
@@ -643,7 +643,7 @@ def _fibonacci_directions(count):
     return np.column_stack((np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)))
 
 
-def _coverage(offsets, directions=200, cone_deg=20.0):
+def direction_coverage(offsets, directions=200, cone_deg=20.0):
     """Fraction of evenly spread directions from the centre that have a surface point within ``cone_deg``."""
     unit = _fibonacci_directions(directions)
     offsets = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)

@@ -1,0 +1,74 @@
+"""The IPC checked against the reference body before it leaves: it must not hold a marker sphere's surface.
+
+The bone's recognition (``bone_recognition``) decides which object is bone; if it ever takes the reference body
+for bone (issue 27: the IPC written was the body's surface, with exit 0), the IPC holds the surface of the
+marker spheres the detector found. A bone's surface can come near a sphere only from one side: a plane tangent
+to the sphere's shell covers at most a sixth of the directions from its centre (the cone of half-angle
+atan(sqrt((r + t)^2 - r^2) / r) = 37 degrees for r = 5.75 mm and t = ``SHELL_MM``, widened by ``CONE_DEG``), while a
+sphere's own surface covers most of them (less its post's foot, or a frame it is sunk into).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .marker_spheres import direction_coverage
+
+#: IPC points within this distance (mm) of a sphere's shell (|p - c| - r) are on its surface.
+SHELL_MM = 1.5
+#: A direction from the centre is covered when an IPC point on the shell lies within this angle of it (degrees).
+CONE_DEG = 10.0
+#: A sphere whose shell holds IPC points over this fraction of the directions from its centre is in the IPC.
+MAX_COVERAGE = 0.4
+#: ... and at least this many points (a speck of noise on the shell is not a sphere's surface).
+MIN_POINTS = 30
+
+
+@dataclass(frozen=True)
+class SphereInSurface:
+    """A marker sphere whose surface the IPC holds: its number (0 when not numbered), centre (3,) RAS mm, the
+    fraction of directions from its centre the IPC covers, and the IPC points on its shell."""
+
+    number: int
+    centre: np.ndarray
+    coverage: float
+    points: int
+
+
+def spheres_in_surface(points, spheres, radius_mm=MARKER_DIAMETER_MM / 2.0):
+    """The marker ``spheres`` (objects with ``centre`` (3,) RAS mm and ``number``) whose surface the IPC ``points``
+    (N, 3) RAS mm holds: over ``MAX_COVERAGE`` of the directions from the centre covered by IPC points within
+    ``SHELL_MM`` of the shell of radius ``radius_mm``. Returns a list of SphereInSurface (empty when the IPC is
+    clear of the reference body's spheres)."""
+    points = np.asarray(points, dtype=np.float64)
+    if not len(points) or not len(spheres):
+        return []
+    tree = cKDTree(points)
+    found = []
+    for sphere in spheres:
+        centre = np.asarray(sphere.centre, dtype=np.float64)
+        near = points[tree.query_ball_point(centre, radius_mm + SHELL_MM)]
+        offsets = near - centre
+        on_shell = offsets[np.abs(np.linalg.norm(offsets, axis=1) - radius_mm) <= SHELL_MM]
+        if len(on_shell) < MIN_POINTS:
+            continue
+        coverage = direction_coverage(on_shell, cone_deg=CONE_DEG)
+        if coverage > MAX_COVERAGE:
+            found.append(SphereInSurface(int(getattr(sphere, "number", 0)), centre, coverage, len(on_shell)))
+    return found
+
+
+def describe(found):
+    """The refusal's words for ``spheres_in_surface``'s list."""
+    spheres = ", ".join(
+        f"{'marker ' + str(item.number) if item.number else 'a sphere'} at "
+        f"({', '.join(f'{value:.0f}' for value in item.centre)}) mm ({100 * item.coverage:.0f} % of it)"
+        for item in found
+    )
+    return (
+        f"the surface taken for the bone holds the surface of the reference body's marker sphere(s): {spheres}; the "
+        "object taken for bone is the reference body, so no IPC is written: check the threshold (--threshold "
+        "auto) and that the bone is in the field of view, or segment the bone by hand"
+    )
