@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from RAMSICPRegistrationLib.image.bracket_stub import bracket_stub
+from RAMSICPRegistrationLib.image.bracket_stub import LINE_LENGTH_MM, LINE_MARGIN_MM, bracket_line, bracket_stub
 
 SPACING = np.array([0.5, 0.5, 0.5])
 
@@ -40,3 +40,36 @@ def test_a_bone_thinner_than_the_bracket_is_not_taken_for_its_stub():
 def test_no_body_no_stub():
     mask, body, _, _ = _bone_and_rod(bone_radius=10.0, rod_radius=3.0, stub_mm=5.0)
     assert not bracket_stub(mask, np.zeros_like(body), SPACING).any()
+
+
+def test_the_line_of_a_bracket_meeting_the_bone_head_on_holds_its_stub_and_the_ring_round_it():
+    """The rod of 3 mm standing on a bone of 10 mm (its top at z = 30 mm), its first 5 mm the bone's: the line runs
+    down the rod's axis (x = 30, y = 20) from the body's end (z = 35 mm) into the bone; points on the stub and the
+    ring round its foot are on it, the bone's surface away from the rod and the bone's far side are not."""
+    mask, body, _, _ = _bone_and_rod(bone_radius=10.0, rod_radius=3.0, stub_mm=5.0)
+    line = bracket_line(mask, body, SPACING)
+    assert line is not None
+    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.02)
+    assert 2.5 <= line.radius_mm <= 3.5
+    end = line.point_mm + line.tip * line.direction
+    assert abs(end[2] - 35.0) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
+    radius = line.radius_mm + LINE_MARGIN_MM
+    inside = np.array([[30.0, 20.0, 32.0], [30.0, 20.0 + 3.2, 33.0], [30.0 + radius - 0.2, 20.0, 30.0]])
+    outside = np.array(
+        [
+            [60.0, 20.0, 30.0],  # the bone's top 30 mm from the rod
+            [30.0 + radius + 0.3, 20.0, 30.0],  # just beyond the ring
+            [30.0, 20.0, 35.0 - LINE_LENGTH_MM - 1.0],  # on the line, past its length: the bone's far side
+            [30.0, 20.0, 40.0],  # up the rod, past the 2 mm before the body's end
+        ]
+    )
+    assert line.contains(inside).all() and not line.contains(outside).any()
+
+
+def test_a_bracket_resting_along_the_bone_has_no_line():
+    """A rod of 3 mm lying along the top of the same bone: its distance to the bone does not fall along it."""
+    points = _grid((120, 80, 100))
+    bone = np.hypot(points[..., 1] - 20.0, points[..., 2] - 20.0) <= 10.0
+    rod = np.hypot(points[..., 1] - 20.0, points[..., 2] - 33.5) <= 3.0
+    assert bracket_line(bone, rod & ~bone, SPACING) is None
+    assert bracket_line(bone, np.zeros_like(bone), SPACING) is None

@@ -21,7 +21,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
-from .bracket_stub import bracket_stub
+from .bracket_stub import bracket_line, bracket_stub
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -336,7 +336,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
+    line = None
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
+        line = bracket_line(mask, segmentation.body[box], volume.spacing)
         stub = bracket_stub(mask, segmentation.body[box], volume.spacing)
         if stub.any():
             mask, other = mask & ~stub, other | stub
@@ -406,6 +408,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if len(vertices_ijk) == 0:
         raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
     by_body = _next_to_body(volume, segmentation, vertices_ijk + low)
+    if line is not None:
+        by_body |= line.contains(vertices_ijk * volume.spacing)
     if by_body.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, by_body)
         logger.info("%d bone-surface points next to the reference body's bracket left out", int(by_body.sum()))
