@@ -86,7 +86,7 @@ def bracket_stub(mask, body, spacing):
 
 class BracketLine:
     """The line of a bracket that meets the bone head-on, fitted to the body's end (its voxels within END_MM of the
-    bone, principal axis): the stub the cut left on the bone lies along it, as far as the bracket reaches into the
+    bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies along it, as far as the bracket reaches into the
     bone. ``contains(positions_mm)`` tells the IPC points on it: within the bracket's radius and LINE_MARGIN_MM of
     the line, from 2 mm before the body's end to LINE_LENGTH_MM past it (a disc round where the bracket enters the
     bone goes with them: the ring the bracket hides). Family seeds 14013, 15072: 439 and 185 IPC points on stubs
@@ -114,8 +114,11 @@ def bracket_line(mask, body, spacing):
     meeting = _BracketEnd(mask, body, spacing)
     if meeting.end is None or meeting.end.sum() < 10:
         return None
-    positions = (np.argwhere(meeting.end) + meeting.low) * spacing
-    to_bone = meeting.to_bone[meeting.end]
+    radius = min(float(meeting.depth[meeting.end].max()), MAX_RADIUS_MM)
+    # A thick bracket's first END_MM are wider than long: its line is read over three of its radii.
+    end = meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius))
+    positions = (np.argwhere(end) + meeting.low) * spacing
+    to_bone = meeting.to_bone[end]
     centre = positions.mean(axis=0)
     direction = np.linalg.svd(positions - centre, full_matrices=False)[2][0]
     along = (positions - centre) @ direction
@@ -126,5 +129,4 @@ def bracket_line(mask, body, spacing):
         return None
     if correlation > 0:  # the line points towards the bone: the distance to it falls along the line
         direction, along = -direction, -along
-    radius = min(float(meeting.depth[meeting.end].max()), MAX_RADIUS_MM)
     return BracketLine(centre, direction, radius, float(along.max()))
