@@ -241,6 +241,17 @@ def test_plastic_spheres_below_the_bone_threshold_are_found():
     assert all(sphere.label == 0 or sphere.status == "ok" for sphere in image.usable)
 
 
+def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
+    """Family seed 16078 (full profile): a tibia's end wholly outside the round field of view, the reference body's
+    star frame, posts and bracket of 707 HU in it (3 of its spheres cut). No object has a cortex; the frame, 10 mm
+    thick, has a rim 172 HU dimmer than its inside. It was taken for a bone without a cortex: the IPC was the frame's
+    (7,542 points, none on the bone), with exit 0. Now the CT is refused, rightly (no bone in view)."""
+    volume, truth = make_family_ct(16078, "full")
+    image, score = run(volume, truth)
+    assert image is None and score.rightly_refused and score.bone_in_view_mm3 == 0.0
+    assert "solid through, no cortex" in score.refused
+
+
 def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
     volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))

@@ -86,11 +86,12 @@ def bracket_stub(mask, body, spacing):
 
 class BracketLine:
     """The line of a bracket that meets the bone head-on, fitted to the body's end (its voxels within END_MM of the
-    bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies along it, as far as the bracket reaches into the
-    bone. ``contains(positions_mm)`` tells the IPC points on it: within the bracket's radius and LINE_MARGIN_MM of
-    the line, from 2 mm before the body's end to LINE_LENGTH_MM past it (a disc round where the bracket enters the
-    bone goes with them: the ring the bracket hides). Family seeds 14013, 15072: 439 and 185 IPC points on stubs
-    6-17 mm long that a thin bone's own thin parts joined (longer than a stub may be)."""
+    bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies
+    along it, as far as the bracket reaches into the bone. ``contains(positions_mm)`` tells the IPC points on it:
+    within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to LINE_LENGTH_MM
+    past it (a disc round where the bracket enters the bone goes with them: the ring the bracket hides). Family
+    seeds 14013, 15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined
+    (longer than a stub may be)."""
 
     def __init__(self, point_mm, direction, radius_mm, tip):
         self.point_mm, self.direction, self.radius_mm, self.tip = point_mm, direction, radius_mm, tip
