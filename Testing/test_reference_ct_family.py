@@ -255,12 +255,14 @@ def test_the_stub_of_a_bracket_inserted_into_a_thin_bone_is_left_out_along_its_l
 def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     """Family seed 16078 (full profile): a tibia's end wholly outside the round field of view, the reference body's
     star frame, posts and bracket of 707 HU in it (3 of its spheres cut). No object has a cortex; the frame, 10 mm
-    thick, has a rim 172 HU dimmer than its inside. It was taken for a bone without a cortex: the IPC was the frame's
-    (7,542 points, none on the bone), with exit 0. Now the CT is refused, rightly (no bone in view)."""
+    thick, has a rim 172 HU dimmer than its inside, and one sphere is found. It was taken for a bone without a cortex:
+    the IPC was the frame's (7,542 points, none on the bone), with exit 0. Now the CT is refused, rightly (no bone in
+    view)."""
     volume, truth = make_family_ct(16078, "full")
     image, score = run(volume, truth)
     assert image is None and score.rightly_refused and score.bone_in_view_mm3 == 0.0
-    assert "solid through, no cortex" in score.refused
+    assert "no object in the CT has a cortex, and the one taken for bone" in score.refused
+    assert "is solid, beside 1 marker sphere(s) found" in score.refused
 
 
 def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):

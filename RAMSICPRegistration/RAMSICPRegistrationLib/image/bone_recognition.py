@@ -19,16 +19,14 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
    inside). The largest such object is the bone. If none has a cortex, the largest thick one without spheres is
    taken, with a warning (or the part a cut took off the body, if its rim is brighter than a solid part's: a flat
-   bone whose cancellous inside is nearly as bright as its cortex), unless it is solid through (its rim brighter than
-   its inside by less than ``SOLID_CONTRAST_HU``) in voxels fine enough to show a cortex: a reference body's frame
-   when the bone is out of view (family seed 16078). If there is none at all, ``ValueError`` says
+   bone whose cancellous inside is nearly as bright as its cortex); if there is none at all, ``ValueError`` says
    what was found and what to do.
 
 Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised CT), which the cut's margin covers.
 """
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -73,8 +71,6 @@ PADDING_HU = -1010.0
 SOLID_CONTRAST_HU = 75.0
 #: ... told only with voxels this fine (mm) or finer.
 SOLID_MAX_VOXEL_MM = 1.0
-#: What an object solid through is taken for when no object has a cortex (voxels of SOLID_MAX_VOXEL_MM or finer).
-SOLID_VERDICT = "solid through, no cortex (a frame or bracket, not bone)"
 #: The largest cores an opening leaves that are weighed, and the cells of a solid one that seed the body.
 MAX_CORES = 4
 SOLID_SEEDS = 40
@@ -233,11 +229,6 @@ def _recognise(volume, segmentation, held, census, reached=()):
     round_marrow = [entry for entry in with_cortex if not entry[0].air_inside]
     with_cortex = round_marrow or with_cortex  # a rim round air is bone only when no rim round marrow is found
     warnings = []
-    if not with_cortex and volume.spacing.max() <= SOLID_MAX_VOXEL_MM + 1e-6:
-        # Voxels this fine show a bone's cortex: an object solid through (a frame, a bracket) is no bone without one.
-        solid = {entry[0].label for entry in found if _is_solid(entry[0].cortex_hu)}
-        verdicts = [replace(v, verdict=SOLID_VERDICT) if v.label in solid else v for v in verdicts]
-        found = [entry for entry in found if entry[0].label not in solid]
     if not with_cortex:
         if not found:
             raise ValueError(_nothing_like_bone(verdicts, segmentation.threshold_hu))

@@ -12,7 +12,7 @@ import numpy as np
 
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
 from .ipc_self_check import describe as describe_spheres_in_surface
-from .ipc_self_check import spheres_in_surface
+from .ipc_self_check import solid_body_taken_for_bone, spheres_in_surface
 from .marker_spheres import detect_marker_spheres, label_sphere_voxels, usable_spheres
 
 
@@ -80,9 +80,9 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
 
     Raises:
         ValueError: a bad threshold, or no voxel above it.
-        NoBoneSurface: no object in the CT that is plausibly bone, none of its surface away from metal, or a
-            surface that holds the reference body's marker spheres (``ipc_self_check``; the message says what was
-            found); it holds the marker spheres found.
+        NoBoneSurface: no object in the CT that is plausibly bone, none of its surface away from metal, a bone
+            without a cortex that is solid beside marker spheres, or a surface that holds the reference body's
+            marker spheres (``ipc_self_check``; the message says what was found); it holds the marker spheres found.
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
@@ -103,6 +103,9 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
         surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
     except ValueError as error:  # the spheres found are the user's all the same
         raise NoBoneSurface(str(error), detection) from error
+    solid = solid_body_taken_for_bone(volume, segmentation, detection.spheres)
+    if solid:
+        raise NoBoneSurface(solid, detection)
     on_spheres = spheres_in_surface(surface.points, body_spheres)
     if on_spheres:  # the last word: an IPC that is the reference body's never leaves
         raise NoBoneSurface(describe_spheres_in_surface(on_spheres), detection)

@@ -6,6 +6,12 @@ marker spheres the detector found. A bone's surface can come near a sphere only 
 to the sphere's shell covers at most a sixth of the directions from its centre (the cone of half-angle
 atan(sqrt((r + t)^2 - r^2) / r) = 37 degrees for r = 5.75 mm and t = ``SHELL_MM``, widened by ``CONE_DEG``), while a
 sphere's own surface covers most of them (less its post's foot, or a frame it is sunk into).
+
+When no object has a cortex, the bone's recognition takes the largest thick object without spheres, with a
+warning; beside a marker sphere, in voxels fine enough to show a cortex, such an object solid through (its rim
+brighter than its inside by less than ``bone_recognition.SOLID_CONTRAST_HU``) is the reference body's frame or
+bracket, not a bone (``solid_body_taken_for_bone``; family seed 16078: a tibia's end wholly outside the round
+field of view, the IPC was the 707 HU star frame's, with exit 0).
 """
 
 from dataclasses import dataclass
@@ -14,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .bone_recognition import SOLID_MAX_VOXEL_MM, _is_solid
 from .marker_spheres import direction_coverage
 
 #: IPC points within this distance (mm) of a sphere's shell (|p - c| - r) are on its surface.
@@ -71,4 +78,21 @@ def describe(found):
         f"the surface taken for the bone holds the surface of the reference body's marker sphere(s): {spheres}; the "
         "object taken for bone is the reference body, so no IPC is written: check the threshold (--threshold "
         "auto) and that the bone is in the field of view, or segment the bone by hand"
+    )
+
+
+def solid_body_taken_for_bone(volume, segmentation, spheres):
+    """The refusal's words when the object taken for bone has no cortex and is solid (``_is_solid``) in voxels of
+    ``SOLID_MAX_VOXEL_MM`` or finer while the CT shows marker ``spheres`` (any found): the reference body's frame
+    or bracket. None otherwise (a bone with a cortex, coarse voxels that blur a cortex away, no sphere in view)."""
+    recognition = segmentation.recognition
+    if recognition is None or not len(spheres) or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
+        return None
+    verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
+    if verdict is None or verdict.verdict != "bone without a cortex" or not _is_solid(verdict.cortex_hu):
+        return None
+    return (
+        f"no object in the CT has a cortex, and the one taken for bone ({verdict.describe()}) is solid, beside "
+        f"{len(spheres)} marker sphere(s) found: it is the reference body's frame or bracket, so no IPC is written; "
+        "check that the bone is in the field of view and that the threshold is below its cortex (--threshold auto)"
     )
