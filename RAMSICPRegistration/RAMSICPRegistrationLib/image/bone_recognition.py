@@ -547,7 +547,7 @@ class _ObjectShape:
             if len(big) < 2:
                 continue
             contrasts = in_parallel(*[partial(self._core_contrast, cores == core, opening) for core in big])
-            solid = [core for core, c in zip(big, contrasts) if _is_solid(c)]
+            solid = [core for core, c in zip(big, contrasts) if is_solid(c)]
             if not solid or not any(c is not None and c >= CORTEX_CONTRAST_HU for c in contrasts):
                 continue
             cells = self._cell_centres_ras()
@@ -606,7 +606,7 @@ class _ObjectShape:
                 if opened.sum() * np.prod(self.cell) < MIN_BONE_MM3 / 4.0:
                     continue
                 contrast = self._cortex(opened, self._depth_of(opened))
-                if not _is_solid(contrast):
+                if not is_solid(contrast):
                     found = (opening, part, opened, contrast)
                     break
             if found:
@@ -767,7 +767,7 @@ def _filled(mask, open_sides=(), padding=None):
     return filled
 
 
-def _is_solid(contrast):
+def is_solid(contrast):
     """True when a rim ``contrast`` (HU, ``_ObjectShape._cortex``; None without a rim or an inside) is a solid
     part's: a rim no brighter than its inside (by less than SOLID_CONTRAST_HU)."""
     return contrast is not None and contrast < SOLID_CONTRAST_HU

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .bone_recognition import SOLID_MAX_VOXEL_MM, _is_solid
+from .bone_recognition import SOLID_MAX_VOXEL_MM, is_solid
 from .marker_spheres import direction_coverage
 
 #: IPC points within this distance (mm) of a sphere's shell (|p - c| - r) are on its surface.
@@ -82,14 +82,14 @@ def describe(found):
 
 
 def solid_body_taken_for_bone(volume, segmentation, spheres):
-    """The refusal's words when the object taken for bone has no cortex and is solid (``_is_solid``) in voxels of
+    """The refusal's words when the object taken for bone has no cortex and is solid (``is_solid``) in voxels of
     ``SOLID_MAX_VOXEL_MM`` or finer while the CT shows marker ``spheres`` (any found): the reference body's frame
     or bracket. None otherwise (a bone with a cortex, coarse voxels that blur a cortex away, no sphere in view)."""
     recognition = segmentation.recognition
     if recognition is None or not len(spheres) or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
         return None
     verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
-    if verdict is None or verdict.verdict != "bone without a cortex" or not _is_solid(verdict.cortex_hu):
+    if verdict is None or verdict.verdict != "bone without a cortex" or not is_solid(verdict.cortex_hu):
         return None
     return (
         f"no object in the CT has a cortex, and the one taken for bone ({verdict.describe()}) is solid, beside "
