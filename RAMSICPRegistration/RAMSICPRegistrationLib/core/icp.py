@@ -153,9 +153,14 @@ class MatchingRanges:
             first_local = np.concatenate(([0], np.cumsum(lengths)[:-1]))
             flat = np.repeat(self._starts[outside] - first_local, lengths) + np.arange(lengths.sum())
             candidate_ids = self._candidates[flat]
-            squared = np.sum((points[candidate_ids] - moving[outside][owner_local]) ** 2, axis=1)
-            best = np.lexsort((squared, owner_local))[first_local]
-            nearest[outside] = candidate_ids[best]
+            offsets = points[candidate_ids] - moving[outside][owner_local]
+            squared = np.einsum("ij,ij->i", offsets, offsets)
+            # The first (closest to the CR position, as the lists are sorted) of each point's nearest candidates;
+            # every list holds at least the point's closest IPC point, at D_i.
+            smallest = np.minimum.reduceat(squared, first_local)
+            at_smallest = np.flatnonzero(squared == smallest[owner_local])
+            _, first = np.unique(owner_local[at_smallest], return_index=True)
+            nearest[outside] = candidate_ids[at_smallest[first]]
             return nearest
 
         return match
@@ -169,10 +174,12 @@ class MatchingRanges:
             distances = np.linalg.norm(self.index.points[ids] - self.centres[point], axis=1)
             order = np.argsort(distances, kind="stable")
             ids, distances = ids[order], distances[order]
-            self._wider[point], self._wider_radius[point] = (ids, distances), wider
-        ids, distances = self._wider[point]
-        ids = ids[: np.searchsorted(distances, radius, side="right")]
-        return int(ids[np.argmin(np.sum((self.index.points[ids] - moving_point) ** 2, axis=1))])
+            self._wider[point] = (ids, distances, np.ascontiguousarray(self.index.points[ids]))
+            self._wider_radius[point] = wider
+        ids, distances, candidates = self._wider[point]
+        count = np.searchsorted(distances, radius, side="right")
+        offsets = candidates[:count] - moving_point
+        return int(ids[np.argmin(np.einsum("ij,ij->i", offsets, offsets))])
 
 
 def icp(
