@@ -252,6 +252,19 @@ def test_the_stub_of_a_bracket_inserted_into_a_thin_bone_is_left_out_along_its_l
     assert score.coverage >= 0.78  # 80 and 81 % measured, as before the line (what else is left out is not its)
 
 
+@pytest.mark.parametrize("seed", [16088, 14020])
+def test_a_wire_or_thin_rod_joined_to_the_bone_leaves_no_ipc_off_it(seed):
+    """Full profile. 16088: a wire (300-3,071 HU, 0.6-2.4 mm wide in the family) touching a tibia: its surface was
+    the IPC's, 669 points 32 mm off the bone on average (96.0 % of the IPC on the bone). 14020: a 715 HU bracket 6.7
+    mm wide resting on a tibia, the rest of the body out of view or below the threshold: 1,236 points on it (95.8 %).
+    Both are left out as the line they are (``thin_appendages.wires_on_bone``), the bone's coverage as before (96.8
+    and 99.0 %)."""
+    volume, truth = make_family_ct(seed, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0
+    assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage >= 0.96
+
+
 def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     """Family seed 16078 (full profile): a tibia's end wholly outside the round field of view, the reference body's
     star frame, posts and bracket of 707 HU in it (3 of its spheres cut). No object has a cortex; the frame, 10 mm

@@ -29,6 +29,7 @@ from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
 from .morphology import all_behind, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
 from .parallel import in_parallel, in_slabs
+from .thin_appendages import wires_on_bone
 
 logger = logging.getLogger(__name__)
 
@@ -336,6 +337,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
+    wire = wires_on_bone(mask, volume.spacing, own=bone[box])  # a wire joined to the bone: another object
+    if wire.any():
+        mask, other = mask & ~wire, other | wire
     line = None
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
         line = bracket_line(mask, segmentation.body[box], volume.spacing)
