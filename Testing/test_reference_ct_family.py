@@ -278,6 +278,19 @@ def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     assert "is solid, beside 1 marker sphere(s) found" in score.refused
 
 
+def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_a_solid_frame():
+    """Family seed 12013 (full profile): a tibia (cortex 725 HU, 3 mm; marrow -54 HU) that the round field of view
+    cuts along its length, a steel pin through it, 3 spheres in view. The cells the field of view's edge runs through
+    (part padding, part CT) joined its marrow to the tissue round it, so the marrow was not filled as its inside: its
+    deepest cells were the cortex and the pin (+2,487 HU), its rim read -1,850 HU on them, and the tibia was refused
+    as the body's solid frame. Those cells are the CT's side now: the marrow is its inside (rim +681 HU), and the IPC
+    is the bone's."""
+    volume, truth = make_family_ct(12013, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 1000
+    assert score.ipc_on_bone == score.ipc_points and score.coverage >= 0.70  # 1,659 points, 72 % covered measured
+
+
 def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
     volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
