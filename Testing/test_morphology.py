@@ -18,6 +18,7 @@ from RAMSICPRegistrationLib.image.morphology import (
     erode,
     labelled,
     open_by_cube,
+    unblock,
 )
 
 
@@ -94,7 +95,8 @@ def test_labelled_picks_the_chosen_labels_never_the_background():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_block_reductions_match_a_loop_over_the_blocks(seed):
-    """``block_max`` drops the partial blocks at the far sides, ``block_any`` keeps them (padded with False)."""
+    """``block_max`` drops the partial blocks at the far sides, ``block_any`` keeps them (padded with False), and
+    ``unblock`` takes ``block_any``'s cells back to the voxels, cut to the mask's shape."""
     for rng, mask in random_masks(seed):
         block = rng.integers(1, 4, size=3)
         values = rng.normal(size=mask.shape)
@@ -110,3 +112,9 @@ def test_block_reductions_match_a_loop_over_the_blocks(seed):
             window = tuple(slice(i * b, (i + 1) * b) for i, b in zip(index, block))
             expected_any[index] = mask[window].any()
         np.testing.assert_array_equal(block_any(mask, block), expected_any)
+        # unblock gives each voxel its block's value: back on the mask's grid, what block_any covers.
+        back = unblock(expected_any, block, mask.shape)
+        assert back.shape == mask.shape
+        for index in np.ndindex(*mask.shape):
+            assert back[index] == expected_any[tuple(np.array(index) // block)]
+        assert not (mask & ~back).any()

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .morphology import block_max, dilate, dilate_by_cube
+from .morphology import block_max, dilate, dilate_by_cube, unblock
 from .parallel import in_parallel
 from .sphere_candidates import block_means
 
@@ -517,7 +517,7 @@ class _ObjectShape:
         filled = _filled(self.mask, self._open_sides, padding)
         if filled.sum() <= self.filled.sum():
             return None
-        depth = ndimage.distance_transform_edt(filled, sampling=self.cell)
+        depth = self._depth_of(filled)
         cortex = self._cortex(filled, depth)
         return (filled, depth) if cortex is not None and cortex >= CORTEX_CONTRAST_HU else None
 
@@ -745,7 +745,7 @@ class _ObjectShape:
         """Booleans over the segmentation's box: the object's voxels on the body's side of the cut (the cells of
         the object not in the bone's part, and the half-empty cells along their surface)."""
         body = dilate(self.filled & ~cut.bone) & ~cut.bone
-        cells = np.repeat(np.repeat(np.repeat(body, self.block[0], 0), self.block[1], 1), self.block[2], 2)
+        cells = unblock(body, self.block, tuple(self.high - self.low))
         box = tuple(slice(a, b) for a, b in zip(self.low, self.high))
         whole = np.zeros(self.segmentation.labels.shape, dtype=bool)
         whole[box] = (self.segmentation.labels[box] == self.label) & cells

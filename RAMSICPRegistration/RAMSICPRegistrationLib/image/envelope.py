@@ -16,7 +16,7 @@ narrower than ``HOLE_MM``, the notch's surface is left out of the IPC, and no po
 import numpy as np
 from scipy import ndimage
 
-from .morphology import block_any, dilate_by_cube, labelled
+from .morphology import block_any, dilate_by_cube, labelled, unblock
 
 #: Holes in the cortex narrower than this (mm) are plugged (the family's brackets are 4-12 mm wide).
 HOLE_MM = 14.0
@@ -52,6 +52,4 @@ def bone_envelope(mask, open_sides, spacing, padding=None):
     enclosed = closed | labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
     # The cells reach up to one cell past the bone: one cell less all round, and the bone's own voxels.
     enclosed = ~dilate_by_cube(~enclosed, 3)
-    for axis in range(3):
-        enclosed = np.repeat(enclosed, block[axis], axis=axis)
-    return mask | enclosed[: mask.shape[0], : mask.shape[1], : mask.shape[2]]
+    return mask | unblock(enclosed, block, mask.shape)

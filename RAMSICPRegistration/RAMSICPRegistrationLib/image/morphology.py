@@ -103,6 +103,14 @@ def block_any(mask, block):
     return block_max(padded, block)
 
 
+def unblock(cells, block, shape):
+    """Booleans of ``shape`` (I, J, K): each voxel the value of its block of ``block`` (3,) voxels in ``cells`` (the
+    inverse of ``block_any``; the far sides' partial blocks cut to ``shape``)."""
+    for axis in range(3):
+        cells = np.repeat(cells, block[axis], axis=axis)
+    return cells[: shape[0], : shape[1], : shape[2]]
+
+
 def labelled(labels, chosen):
     """Booleans of ``labels``'s shape: the voxels whose label (from ``ndimage.label``) is one of ``chosen``; 0 (the
     background) never. A look-up table: ``np.isin`` sorts, twice as slow on a bone's box."""

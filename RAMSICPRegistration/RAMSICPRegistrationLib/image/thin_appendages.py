@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from .morphology import block_any, dilate, erode, open_by_cube
+from .morphology import block_any, dilate, erode, open_by_cube, unblock
 
 logger = logging.getLogger(__name__)
 
@@ -56,25 +56,22 @@ def wires_on_bone(mask, spacing, own=None):
         return np.zeros(mask.shape, dtype=bool)
     # Candidates stick out that far in the city-block metric (short of it along the diagonals); then measured.
     reach = dilate(kept, iterations=int(np.ceil(PROTRUDES_MM / cell.min())))
-    candidates = [label for label in np.unique(labels[taken & ~reach]) if label]
-    wires = [label for label in candidates if _line_like(labels, label, cell)]
-    if wires:
+    candidates = {label: np.argwhere(labels == label) * cell for label in np.unique(labels[taken & ~reach]) if label}
+    lines = {label: where for label, where in candidates.items() if _line_like(where, cell)}
+    if lines:
         surface = cKDTree(np.argwhere(kept & ~erode(kept)) * cell)
-        wires = [
-            label for label in wires if surface.query(np.argwhere(labels == label) * cell)[0].max() >= PROTRUDES_MM
-        ]
-    if not wires:
+        lines = {label: where for label, where in lines.items() if surface.query(where)[0].max() >= PROTRUDES_MM}
+    if not lines:
         return np.zeros(mask.shape, dtype=bool)
-    wire = np.isin(labels, wires)
-    logger.info("%d wire(s) joined to the bone left out (%.0f mm^3)", len(wires), wire.sum() * np.prod(cell))
-    full = np.repeat(np.repeat(np.repeat(wire, block[0], 0), block[1], 1), block[2], 2)
-    wire = mask & full[: mask.shape[0], : mask.shape[1], : mask.shape[2]]
+    wire = np.isin(labels, list(lines))
+    logger.info("%d wire(s) joined to the bone left out (%.0f mm^3)", len(lines), wire.sum() * np.prod(cell))
+    wire = mask & unblock(wire, block, mask.shape)
     return wire if own is None else wire & own
 
 
-def _line_like(labels, label, cell):
-    """Whether component ``label`` of ``labels`` is a line: narrow across its principal axis, long along it."""
-    where = np.argwhere(labels == label) * cell
+def _line_like(where, cell):
+    """Whether a component, its cells' positions ``where`` (N, 3) mm on cells of ``cell`` (3,) mm, is a line: narrow
+    across its principal axis, long along it."""
     if len(where) < 4:
         return False
     spread = np.sqrt(np.maximum(np.linalg.eigvalsh(np.cov(where.T)), 0.0))  # ascending
