@@ -2,7 +2,13 @@
 
 import numpy as np
 
-from RAMSICPRegistrationLib.image.bracket_stub import LINE_LENGTH_MM, LINE_MARGIN_MM, bracket_line, bracket_stub
+from RAMSICPRegistrationLib.image.bracket_stub import (
+    LINE_LENGTH_MM,
+    LINE_MARGIN_MM,
+    bracket_line,
+    bracket_line_beyond,
+    bracket_stub,
+)
 
 SPACING = np.array([0.5, 0.5, 0.5])
 
@@ -73,3 +79,23 @@ def test_a_bracket_resting_along_the_bone_has_no_line():
     rod = np.hypot(points[..., 1] - 20.0, points[..., 2] - 33.5) <= 3.0
     assert bracket_line(bone, rod & ~bone, SPACING) is None
     assert bracket_line(bone, np.zeros_like(bone), SPACING) is None
+
+
+def test_a_thick_bracket_cut_short_by_the_bone_box_is_read_beyond_it():
+    """A rod of 5.5 mm on a bone of 9 mm (family seed 15028's sizes), its first 3 mm the bone's. Over the bone's box
+    (4 voxels round it) the body is a disc 3 mm long, wider than long: no line. Read beyond the box, the line runs
+    down the rod's axis, in the box's frame, and holds the stub's side."""
+    mask, body, stub, _ = _bone_and_rod(bone_radius=9.0, rod_radius=5.5, stub_mm=3.0)
+    where = np.argwhere(mask)
+    low, high = np.maximum(where.min(axis=0) - 4, 0), where.max(axis=0) + 5
+    box = tuple(slice(a, b) for a, b in zip(low, high))
+    assert bracket_line(mask[box], body[box], SPACING) is None
+    line = bracket_line_beyond(mask[box], body, low, SPACING)
+    assert line is not None
+    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.02)
+    end = line.point_mm + line.tip * line.direction + low * SPACING  # back in the whole grid's frame
+    rim = 20.0 + np.sqrt(9.0**2 - 5.5**2) + 3.0  # the body's end: its rim, where the stub's side ends (30.1 mm)
+    assert abs(end[2] - rim) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.3
+    side = np.array([[30.0 + 5.5, 20.0, 30.0], [30.0, 20.0 - 5.5, 31.0]]) - low * SPACING  # the stub's side
+    far = np.array([[60.0, 20.0, 29.0], [30.0, 20.0, 2.0]]) - low * SPACING  # the bone's top away, its far side
+    assert line.contains(side).all() and not line.contains(far).any()

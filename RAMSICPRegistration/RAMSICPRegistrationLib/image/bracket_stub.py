@@ -108,6 +108,25 @@ class BracketLine:
         )
 
 
+def bracket_line_beyond(mask, body, low, spacing):
+    """``bracket_line`` read on the body beyond the bone's box too: ``mask`` the bone over its box, which starts
+    at voxel ``low`` (3,) of ``body`` (the reference body's booleans over a larger box). The box round a bone
+    leaves a thick bracket within a few mm of it, where its end is wider than long and gives no line (family seed
+    15028: a 10.9 mm bracket inserted into an 18 mm tibia, 354 IPC points on the stub). Returns the BracketLine in
+    the frame index times spacing of ``mask``, or None."""
+    spacing = np.asarray(spacing, float)
+    low = np.asarray(low, int)
+    reach = np.ceil(max(END_MM, 3.0 * MAX_RADIUS_MM) / spacing).astype(int) + 1
+    wide_low = np.maximum(low - reach, 0)
+    wide_high = np.minimum(low + np.array(mask.shape) + reach, body.shape)
+    wide = np.zeros(wide_high - wide_low, dtype=bool)
+    wide[tuple(slice(a, a + n) for a, n in zip(low - wide_low, mask.shape))] = mask
+    line = bracket_line(wide, body[tuple(slice(a, b) for a, b in zip(wide_low, wide_high))], spacing)
+    if line is not None:
+        line.point_mm = line.point_mm - (low - wide_low) * spacing
+    return line
+
+
 def bracket_line(mask, body, spacing):
     """The BracketLine of the ``body`` (the body's voxels cut off the bone ``mask``, same box; ``spacing`` (3,) mm)
     in the frame index times spacing of these arrays, or None when the bracket does not meet the bone head-on."""

@@ -21,7 +21,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
-from .bracket_stub import bracket_line, bracket_stub
+from .bracket_stub import bracket_line_beyond, bracket_stub
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -342,7 +342,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         mask, other = mask & ~wire, other | wire
     line = None
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
-        line = bracket_line(mask, segmentation.body[box], volume.spacing)
+        line = bracket_line_beyond(mask, segmentation.body, low, volume.spacing)
         stub = bracket_stub(mask, segmentation.body[box], volume.spacing)
         if stub.any():
             mask, other = mask & ~stub, other | stub
