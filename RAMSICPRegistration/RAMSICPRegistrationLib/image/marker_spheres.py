@@ -68,8 +68,9 @@ CLEAN_FIT_MM = 0.06
 MAX_MISSING = 0.05
 #: A sphere with more than MAX_INWARD of its edges INWARD_MM or more inside the fitted sphere is partial: the flat face
 #: of a cap cut off, too shallow (2-3 mm) for its rays to find air within the radius, whose rim the robust fit half
-#: follows (family seed 17022: 5.8 % of the edges, the centre 0.20 mm off, the fit's RMS 0.058 mm). Over 691 spheres
-#: with no cap missing in 16000-17099, at most 2.0 % of the edges lie that far in (streaks, a frame's blur).
+#: follows (family seed 17022: 5.8 % of the edges, the centre 0.20 mm off, the fit's RMS 0.058 mm). Over the 1,209
+#: usable spheres with no cap missing in 14000-17099 (four batches), at most 1.8 % of the edges lie that far in
+#: (streaks, a frame's blur); 12 of the 13 usable ones with a cap missing have more (0.02-0.20 mm off).
 INWARD_MM = 0.3
 MAX_INWARD = 0.04
 #: A fit whose radius is off by more than this (mm), or that sees less than MIN_COVERAGE, is not a marker sphere
