@@ -99,3 +99,17 @@ def test_a_thick_bracket_cut_short_by_the_bone_box_is_read_beyond_it():
     side = np.array([[30.0 + 5.5, 20.0, 30.0], [30.0, 20.0 - 5.5, 31.0]]) - low * SPACING  # the stub's side
     far = np.array([[60.0, 20.0, 29.0], [30.0, 20.0, 2.0]]) - low * SPACING  # the bone's top away, its far side
     assert line.contains(side).all() and not line.contains(far).any()
+
+
+def test_the_line_stops_half_way_to_the_far_side_of_a_thin_bone():
+    """A rod of 3 mm on a bone of 6 mm, its first 2 mm the bone's (the body's end at z = 27.2 mm): the bone's far
+    side (z = 14 mm) is 13 mm down the line, within LINE_LENGTH_MM; the line stops half-way to it (family seed
+    14109: a disc of 480 IPC points on a tibia's far side). The stub's side and the ring round its foot are on it."""
+    mask, body, _, _ = _bone_and_rod(bone_radius=6.0, rod_radius=3.0, stub_mm=2.0)
+    line = bracket_line(mask, body, SPACING)
+    assert line is not None
+    far_side = 27.2 - 14.0
+    assert abs(line.length_mm - 0.5 * far_side) <= 1.0
+    on_it = np.array([[33.0, 20.0, 27.0], [34.5, 20.0, 26.0]])  # the stub's side, the ring on the bone's top
+    far = np.array([[30.0, 20.0, 14.3], [33.0, 20.0, 15.0]])
+    assert line.contains(on_it).all() and not line.contains(far).any()
