@@ -113,3 +113,20 @@ def test_the_line_stops_half_way_to_the_far_side_of_a_thin_bone():
     on_it = np.array([[33.0, 20.0, 27.0], [34.5, 20.0, 26.0]])  # the stub's side, the ring on the bone's top
     far = np.array([[30.0, 20.0, 14.3], [33.0, 20.0, 15.0]])
     assert line.contains(on_it).all() and not line.contains(far).any()
+
+
+def test_the_line_goes_to_the_tip_of_a_bracket_out_of_a_flat_bone_far_side():
+    """A rod of 3 mm through a flat bone 10 mm thick (z 15-25 mm), its tip 3 mm out of the far side and its first
+    2 mm above the bone left with it, as the cut leaves them (family seeds 16011, 17029: 92 and 297 IPC points on
+    such tips). Past the bone the line is narrower than the ring round it: it goes to the tip, 2 mm more, and holds
+    the tip's side; the far side's surface away from the rod is not on it."""
+    points = _grid((120, 80, 100))
+    bone = (points[..., 2] >= 15.0) & (points[..., 2] <= 25.0)
+    rod = (np.hypot(points[..., 0] - 30.0, points[..., 1] - 20.0) <= 3.0) & (points[..., 2] >= 12.0)
+    body = rod & (points[..., 2] > 27.0)
+    line = bracket_line(bone | (rod & ~body), body, SPACING)
+    assert line is not None
+    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.02)
+    assert abs(line.length_mm - (27.0 - 12.0 + LINE_MARGIN_MM)) <= 1.0
+    tip_side = np.array([[33.0, 20.0, 13.0], [30.0, 17.0, 12.5]])
+    assert line.contains(tip_side).all() and not line.contains(np.array([[60.0, 20.0, 14.9]])).any()

@@ -28,6 +28,8 @@ MAX_LENGTH_MM = 12.0
 #: margin (mm) of it are the bracket's (``BracketLine``)...
 LINE_LENGTH_MM = 20.0
 LINE_MARGIN_MM = 2.0
+#: ... and stops short of the bone's far side unless the bracket's tip comes out there, this long (mm) at least.
+TIP_MM = 1.0
 #: ... when the bracket meets the bone head-on: along its end the distance to the bone falls steadily (the
 #: correlation of the two over the end's voxels at least this; a bracket resting along the bone has none).
 HEAD_ON = 0.9
@@ -156,22 +158,40 @@ def bracket_line(mask, body, spacing):
         direction,
         radius,
         tip,
-        _reach_past_the_end(mask, body, spacing, centre + tip * direction, direction),
+        _reach_past_the_end(mask, body, spacing, centre + tip * direction, direction, radius),
     )
 
 
-def _reach_past_the_end(mask, body, spacing, end_mm, direction):
-    """How far (mm) past the body's end (``end_mm`` (3,), index times spacing) the bracket's line goes: half-way to
-    where it leaves the bone (with the stub and the bracket in it) on its far side, LINE_LENGTH_MM at most. A line
-    that went its whole length took a disc of the far side of a bone thinner than that: a tibia 19 mm across under
-    a resting bracket (family seed 14109) lost 480 IPC points there, 5 points of its coverage."""
+def _reach_past_the_end(mask, body, spacing, end_mm, direction, radius_mm):
+    """How far (mm) past the body's end (``end_mm`` (3,), index times spacing) the bracket's line goes: to where it
+    leaves the bone (with the stub and the bracket in it) on the far side, and LINE_MARGIN_MM more, when it leaves
+    through the bracket's tip; half-way to it when it leaves through the bone's far side; LINE_LENGTH_MM at most.
+
+    A line that went its whole length took a disc of the far side of a bone thinner than that (a tibia 19 mm across
+    under a resting bracket, family seed 14109: 480 IPC points, 5 points of its coverage). A bracket through a
+    flat bone and out of its far side (12023, 16011, 17029: 92-297 points on its tip) leaves the line past the bone,
+    narrower than a ring of its radius + LINE_MARGIN_MM + 1 mm round it for TIP_MM or more of the line's last part;
+    a bone's far side, flat or round, meets that ring as deep as it meets the line along at least one direction (to a
+    sample, 0.5 mm)."""
     steps = np.arange(0.0, LINE_LENGTH_MM + 0.25, 0.5)
     held = _in_mask(mask | body, end_mm + steps[:, None] * direction, spacing)
     if not held.any() or held[held.argmax() :].all():
         return LINE_LENGTH_MM  # the line does not leave the bone within its length (or leaves the arrays)
     first = int(held.argmax())
-    far_side_mm = float(steps[first + int(np.argmin(held[first:])) - 1])
-    return min(0.5 * far_side_mm, LINE_LENGTH_MM)
+    last = first + int(np.argmin(held[first:])) - 1  # the last sample in the bone before the line leaves it
+    across = np.linalg.svd(direction[None], full_matrices=True)[2][1:]  # two unit vectors across the line
+    angles = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    ring = (radius_mm + LINE_MARGIN_MM + 1.0) * (
+        np.cos(angles)[:, None] * across[0] + np.sin(angles)[:, None] * across[1]
+    )
+    narrow = 0
+    while (
+        narrow <= last - first and not _in_mask(mask, end_mm + steps[last - narrow] * direction + ring, spacing).any()
+    ):
+        narrow += 1
+    if narrow * 0.5 >= TIP_MM:
+        return min(float(steps[last]) + LINE_MARGIN_MM, LINE_LENGTH_MM)
+    return min(0.5 * float(steps[last]), LINE_LENGTH_MM)
 
 
 def _in_mask(mask, positions_mm, spacing):
