@@ -101,32 +101,17 @@ def test_a_thick_bracket_cut_short_by_the_bone_box_is_read_beyond_it():
     assert line.contains(side).all() and not line.contains(far).any()
 
 
-def test_the_line_stops_half_way_to_the_far_side_of_a_thin_bone():
-    """A rod of 3 mm on a bone of 6 mm, its first 2 mm the bone's (the body's end at z = 27.2 mm): the bone's far
-    side (z = 14 mm) is 13 mm down the line, within LINE_LENGTH_MM; the line stops half-way to it (family seed
-    14109: a disc of 480 IPC points on a tibia's far side). The stub's side and the ring round its foot are on it."""
-    mask, body, _, _ = _bone_and_rod(bone_radius=6.0, rod_radius=3.0, stub_mm=2.0)
-    line = bracket_line(mask, body, SPACING)
-    assert line is not None
-    far_side = 27.2 - 14.0
-    assert abs(line.length_mm - 0.5 * far_side) <= 1.0
-    on_it = np.array([[33.0, 20.0, 27.0], [34.5, 20.0, 26.0]])  # the stub's side, the ring on the bone's top
-    far = np.array([[30.0, 20.0, 14.3], [33.0, 20.0, 15.0]])
-    assert line.contains(on_it).all() and not line.contains(far).any()
-
-
-def test_the_line_goes_to_the_tip_of_a_bracket_out_of_a_flat_bone_far_side():
-    """A rod of 3 mm through a flat bone 10 mm thick (z 15-25 mm), its tip 3 mm out of the far side and its first
-    2 mm above the bone left with it, as the cut leaves them (family seeds 16011, 17029: 92 and 297 IPC points on
-    such tips). Past the bone the line is narrower than the ring round it: it goes to the tip, 2 mm more, and holds
-    the tip's side; the far side's surface away from the rod is not on it."""
+def test_a_bracket_through_a_flat_bone_is_read_on_its_side_and_its_tip_beyond_is_on_the_line():
+    """A rod of 3 mm through a flat bone 10 mm thick (z 15-25 mm), its tip 3 mm out of the far side (family seed
+    12023). The tip is the body's too and lies next to the bone, but on the far side: the line is read on the
+    piece the rod comes from (falling towards the bone), and holds the tip's side."""
     points = _grid((120, 80, 100))
     bone = (points[..., 2] >= 15.0) & (points[..., 2] <= 25.0)
     rod = (np.hypot(points[..., 0] - 30.0, points[..., 1] - 20.0) <= 3.0) & (points[..., 2] >= 12.0)
-    body = rod & (points[..., 2] > 27.0)
-    line = bracket_line(bone | (rod & ~body), body, SPACING)
+    line = bracket_line(bone, rod & ~bone, SPACING)
     assert line is not None
     np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.02)
-    assert abs(line.length_mm - (27.0 - 12.0 + LINE_MARGIN_MM)) <= 1.0
+    end = line.point_mm + line.tip * line.direction
+    assert abs(end[2] - 25.5) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
     tip_side = np.array([[33.0, 20.0, 13.0], [30.0, 17.0, 12.5]])
     assert line.contains(tip_side).all() and not line.contains(np.array([[60.0, 20.0, 14.9]])).any()

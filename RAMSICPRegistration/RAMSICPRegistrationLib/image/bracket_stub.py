@@ -28,8 +28,6 @@ MAX_LENGTH_MM = 12.0
 #: margin (mm) of it are the bracket's (``BracketLine``)...
 LINE_LENGTH_MM = 20.0
 LINE_MARGIN_MM = 2.0
-#: ... and stops short of the bone's far side unless the bracket's tip comes out there, this long (mm) at least.
-TIP_MM = 1.0
 #: ... when the bracket meets the bone head-on: along its end the distance to the bone falls steadily (the
 #: correlation of the two over the end's voxels at least this; a bracket resting along the bone has none).
 HEAD_ON = 0.9
@@ -90,14 +88,13 @@ class BracketLine:
     """The line of a bracket that meets the bone head-on, fitted to the body's end (its voxels within END_MM of the
     bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies
     along it, as far as the bracket reaches into the bone. ``contains(positions_mm)`` tells the IPC points on it:
-    within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to ``length_mm``
+    within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to LINE_LENGTH_MM
     past it (a disc round where the bracket enters the bone goes with them: the ring the bracket hides). Family
     seeds 14013, 15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined
-    (longer than a stub may be). ``length_mm`` (``_reach_past_the_end``) stops short of the bone's far side."""
+    (longer than a stub may be)."""
 
-    def __init__(self, point_mm, direction, radius_mm, tip, length_mm=LINE_LENGTH_MM):
+    def __init__(self, point_mm, direction, radius_mm, tip):
         self.point_mm, self.direction, self.radius_mm, self.tip = point_mm, direction, radius_mm, tip
-        self.length_mm = length_mm
 
     def contains(self, positions_mm):
         """(M,) booleans for (M, 3) positions in mm (index times spacing, the frame of the arrays fitted)."""
@@ -107,8 +104,17 @@ class BracketLine:
         return (
             (across <= self.radius_mm + LINE_MARGIN_MM)
             & (along >= self.tip - 2.0)
-            & (along <= self.tip + self.length_mm)
+            & (along <= self.tip + LINE_LENGTH_MM)
         )
+
+
+def _largest_piece(mask):
+    """The largest connected piece of a boolean array: the bracket's end on the side it comes from, not its tip
+    where it goes through a flat bone and out of its far side (family seed 12023: 149 IPC points on that tip)."""
+    labels, count = ndimage.label(mask)
+    if count <= 1:
+        return mask
+    return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
 
 
 def bracket_line_beyond(mask, body, low, spacing):
@@ -139,7 +145,7 @@ def bracket_line(mask, body, spacing):
         return None
     radius = min(float(meeting.depth[meeting.end].max()), MAX_RADIUS_MM)
     # A thick bracket's first END_MM are wider than long: its line is read over three of its radii.
-    end = meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius))
+    end = _largest_piece(meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius)))
     positions = (np.argwhere(end) + meeting.low) * spacing
     to_bone = meeting.to_bone[end]
     centre = positions.mean(axis=0)
@@ -152,51 +158,4 @@ def bracket_line(mask, body, spacing):
         return None
     if correlation > 0:  # the line points towards the bone: the distance to it falls along the line
         direction, along = -direction, -along
-    tip = float(along.max())
-    return BracketLine(
-        centre,
-        direction,
-        radius,
-        tip,
-        _reach_past_the_end(mask, body, spacing, centre + tip * direction, direction, radius),
-    )
-
-
-def _reach_past_the_end(mask, body, spacing, end_mm, direction, radius_mm):
-    """How far (mm) past the body's end (``end_mm`` (3,), index times spacing) the bracket's line goes: to where it
-    leaves the bone (with the stub and the bracket in it) on the far side, and LINE_MARGIN_MM more, when it leaves
-    through the bracket's tip; half-way to it when it leaves through the bone's far side; LINE_LENGTH_MM at most.
-
-    A line that went its whole length took a disc of the far side of a bone thinner than that (a tibia 19 mm across
-    under a resting bracket, family seed 14109: 480 IPC points, 5 points of its coverage). A bracket through a
-    flat bone and out of its far side (12023, 16011, 17029: 92-297 points on its tip) leaves the line past the bone,
-    narrower than a ring of its radius + LINE_MARGIN_MM + 1 mm round it for TIP_MM or more of the line's last part;
-    a bone's far side, flat or round, meets that ring as deep as it meets the line along at least one direction (to a
-    sample, 0.5 mm)."""
-    steps = np.arange(0.0, LINE_LENGTH_MM + 0.25, 0.5)
-    held = _in_mask(mask | body, end_mm + steps[:, None] * direction, spacing)
-    if not held.any() or held[held.argmax() :].all():
-        return LINE_LENGTH_MM  # the line does not leave the bone within its length (or leaves the arrays)
-    first = int(held.argmax())
-    last = first + int(np.argmin(held[first:])) - 1  # the last sample in the bone before the line leaves it
-    across = np.linalg.svd(direction[None], full_matrices=True)[2][1:]  # two unit vectors across the line
-    angles = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-    ring = (radius_mm + LINE_MARGIN_MM + 1.0) * (
-        np.cos(angles)[:, None] * across[0] + np.sin(angles)[:, None] * across[1]
-    )
-    narrow = 0
-    while (
-        narrow <= last - first and not _in_mask(mask, end_mm + steps[last - narrow] * direction + ring, spacing).any()
-    ):
-        narrow += 1
-    if narrow * 0.5 >= TIP_MM:
-        return min(float(steps[last]) + LINE_MARGIN_MM, LINE_LENGTH_MM)
-    return min(0.5 * float(steps[last]), LINE_LENGTH_MM)
-
-
-def _in_mask(mask, positions_mm, spacing):
-    """(M,) booleans: which (M, 3) positions (index times spacing) fall in a voxel of ``mask`` (False outside it)."""
-    index = np.rint(positions_mm / spacing).astype(int)
-    inside = ((index >= 0) & (index < np.array(mask.shape))).all(axis=1)
-    index = np.clip(index, 0, np.array(mask.shape) - 1)
-    return mask[tuple(index.T)] & inside
+    return BracketLine(centre, direction, radius, float(along.max()))
