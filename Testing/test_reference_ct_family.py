@@ -252,13 +252,16 @@ def test_the_stub_of_a_bracket_inserted_into_a_thin_bone_is_left_out_along_its_l
     assert score.coverage >= 0.78  # 80 and 81 % measured, as before the line (what else is left out is not its)
 
 
-def test_the_line_of_a_thick_bracket_is_read_beyond_the_bone_box():
+@pytest.mark.parametrize("seed", [15028, 12023])
+def test_the_line_of_a_bracket_is_read_beyond_the_bone_box_and_on_the_side_it_comes_from(seed):
     """15028: a 10.9 mm bracket inserted into an 18 mm tibia; the box round the bone cut its end to a disc, wider
-    than long, that gave no line (354 IPC points on the stub, 3-7 mm off the bone)."""
-    volume, truth = make_family_ct(15028, "full")
+    than long, that gave no line (354 IPC points on the stub, 3-7 mm off the bone). 12023: a 6.5 mm bracket through
+    an 11 mm flat bone, its tip out of the far side next to the bone too, so the end's axis was no line (149 points
+    on the tip); the line is read on the end's largest piece."""
+    volume, truth = make_family_ct(seed, "full")
     _, score = run(volume, truth)
     assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
-    assert score.coverage >= 0.84  # 86 % measured, as before
+    assert score.coverage >= (0.84 if seed == 15028 else 0.88)  # 86 and 91 % measured, as before
 
 
 @pytest.mark.parametrize("seed", [16088, 14020])
