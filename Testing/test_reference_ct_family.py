@@ -290,6 +290,17 @@ def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     assert "is solid, beside 1 marker sphere(s) found" in score.refused
 
 
+def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():
+    """Family seed 18066 (full profile, a batch first run in this round): a flat bone whose cancellous inside (595
+    HU) is nearly as bright as its 704 HU cortex (rim +48 HU), apart from the reference body (its bracket short of
+    the bone), 64-92 mm from the 4 spheres found. It was refused as the body's solid frame with 46 cm^3 of bone in
+    view; a frame holds its spheres within a post's reach, so it is the bone now."""
+    volume, truth = make_family_ct(18066, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.95 and score.found == score.visible == 3  # 97.7 % measured
+
+
 def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_a_solid_frame():
     """Family seed 12013 (full profile): a tibia (cortex 725 HU, 3 mm; marrow -54 HU) that the round field of view
     cuts along its length, a steel pin through it, 3 spheres in view. The cells the field of view's edge runs through

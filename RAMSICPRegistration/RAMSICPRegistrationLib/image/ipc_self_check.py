@@ -11,7 +11,9 @@ When no object has a cortex, the bone's recognition takes the largest thick obje
 warning; beside a marker sphere, in voxels fine enough to show a cortex, such an object solid through (its rim
 brighter than its inside by less than ``bone_recognition.SOLID_CONTRAST_HU``) is the reference body's frame or
 bracket, not a bone (``solid_body_taken_for_bone``; family seed 16078: a tibia's end wholly outside the round
-field of view, the IPC was the 707 HU star frame's, with exit 0).
+field of view, the IPC was the 707 HU star frame's, with exit 0). Beside means within a post's reach of a sphere
+(``SPHERE_REACH_MM``): a flat bone whose cancellous inside is nearly as bright as its cortex (rim +48 HU), 64-92 mm
+from the spheres, is no frame of theirs (family seed 18066 was refused with 46 cm^3 of bone in view).
 """
 
 from dataclasses import dataclass
@@ -31,6 +33,9 @@ CONE_DEG = 10.0
 MAX_COVERAGE = 0.4
 #: ... and at least this many points (a speck of noise on the shell is not a sphere's surface).
 MIN_POINTS = 30
+#: A frame holds its spheres on posts: a solid object no sphere centre comes within this far (mm) of is not the
+#: body's frame (posts up to 25 mm long, and the sphere's radius).
+SPHERE_REACH_MM = 35.0
 
 
 @dataclass(frozen=True)
@@ -91,8 +96,19 @@ def solid_body_taken_for_bone(volume, segmentation, spheres):
     verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
     if verdict is None or verdict.verdict != "bone without a cortex" or not is_solid(verdict.cortex_hu):
         return None
+    if _distance_to_object(volume, segmentation, recognition.label, spheres) > SPHERE_REACH_MM:
+        return None
     return (
         f"no object in the CT has a cortex, and the one taken for bone ({verdict.describe()}) is solid, beside "
         f"{len(spheres)} marker sphere(s) found: it is the reference body's frame or bracket, so no IPC is written; "
         "check that the bone is in the field of view and that the threshold is below its cortex (--threshold auto)"
     )
+
+
+def _distance_to_object(volume, segmentation, label, spheres):
+    """The shortest distance (mm) from a sphere's centre to a voxel of the object ``label`` of the segmentation."""
+    voxels = np.argwhere(segmentation.labels == label) + segmentation.origin
+    if not len(voxels):
+        return float("inf")
+    centres = np.array([sphere.centre for sphere in spheres]).reshape(-1, 3)
+    return float(cKDTree(volume.ijk_to_ras_points(voxels)).query(centres)[0].min())
