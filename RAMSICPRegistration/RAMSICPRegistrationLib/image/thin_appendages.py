@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from .morphology import block_any, dilate, erode, open_by_cube, unblock
+from .morphology import block_any, dilate, erode, labelled, open_by_cube, unblock
 
 logger = logging.getLogger(__name__)
 
@@ -63,7 +63,7 @@ def wires_on_bone(mask, spacing, own=None):
         lines = {label: where for label, where in lines.items() if surface.query(where)[0].max() >= PROTRUDES_MM}
     if not lines:
         return np.zeros(mask.shape, dtype=bool)
-    wire = np.isin(labels, list(lines))
+    wire = labelled(labels, list(lines))
     logger.info("%d wire(s) joined to the bone left out (%.0f mm^3)", len(lines), wire.sum() * np.prod(cell))
     wire = mask & unblock(wire, block, mask.shape)
     return wire if own is None else wire & own
