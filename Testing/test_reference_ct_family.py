@@ -319,10 +319,11 @@ def test_a_solid_frame_the_seeds_miss_is_not_grown_into_the_bone_through_its_bra
 def test_a_body_that_no_sphere_tells_is_told_by_the_solid_part_its_bracket_leads_to(seed, overrides):
     """No sphere says where the body is, and no opening splits its frame off the bone, thinner than the bracket
     that joins them. 11094 (full profile): a 9.3 mm metal bracket (1,637 HU) inserted into a tibia from a dim ring
-    frame (353 HU), three spheres cut by the field of view: 3,158 IPC points on the bracket and frame. 32007 (a held-out
-    draw with the plate and the inserted bracket forced): plastic spheres sunk into a 5 mm plate of 1,034 HU, on a
-    6.9 mm bracket inserted into a flat bone: 40,764 of 70,257 IPC points on the plate. The bone's core, grown from
-    its thickest part, reaches the frame beyond the bracket, which is solid: that is the body's now."""
+    frame (353 HU), three spheres cut by the field of view: 3,158 IPC points on the bracket and frame. 32007 (first
+    met as a held-out draw; the plate and the inserted bracket forced): plastic spheres sunk into a 5 mm plate of
+    1,034 HU, on a 6.9 mm bracket inserted into a flat bone: 40,764 of 70,257 IPC points on the plate. The bone's
+    core, grown from its thickest part, reaches the frame beyond the bracket, which is solid: that is the body's
+    now."""
     volume, truth = make_family_ct(seed, "full", overrides=overrides)
     _, score = run(volume, truth)
     assert not score.refused and score.visible == 0
