@@ -657,12 +657,13 @@ class _ObjectShape:
         margin = 0.0
         for opening in [r for r in OPENING_RADII_MM[::-1] if r < kept]:
             part = self._core_through(depth >= opening, core_kept, apart)
-            rods = self._rods(part, bone, rest & ~apart, near_sphere, opening, bone_going_on)
+            away = self._distance_to(bone, ROD_TO_MM)  # from the bone kept so far: the rods' band, the far parts
+            rods = self._rods(part, bone, away, rest & ~apart, near_sphere, opening, bone_going_on)
             if rods.any():
                 apart |= self._within(rods, opening + self.cell.max())
                 margin = max(margin, opening)
                 part = self._core_through(part, core_kept, apart)
-            solid = self._solid_parts_grown(part, bone, rest, opening)
+            solid = self._solid_parts_grown(part, away, rest, opening)
             if solid.any():
                 apart |= self._within(solid, opening + self.cell.max())
                 part = self._core_through(part, core_kept, apart)
@@ -686,18 +687,19 @@ class _ObjectShape:
         margin = max(margin, kept) + 2.0 * float(self.cell.max()) + 1.0
         return verdict, _Cut(bone, margin)
 
-    def _solid_parts_grown(self, core, bone, rest, opening):
+    def _solid_parts_grown(self, core, away, rest, opening):
         """The cells of the bone's ``core`` (at ``opening`` mm) that make solid parts farther than ROD_TO_MM from the
-        ``bone`` kept so far: pieces of at least MIN_CORE_MM3 whose rim, opened back within ``rest``, is no brighter
-        than their inside (``is_solid``). They are the body, which the seeds did not reach: a ring frame's far side
-        between the seeds of its solid junctions, its core grown in through the bracket (18037: 13 cm^3 of a 2,480 HU
-        ring kept with the bone). Over 200 CTs, such far pieces of the body were solid (rim -337 to +43 HU on the
-        inside) and those of bone were not (+228 to +1,489 HU). Voxels coarser than SOLID_MAX_VOXEL_MM, and openings
-        under SOLID_GROWN_MIN_OPENING_MM, tell no solid part."""
+        bone kept so far (``away``: the cells' distances to it, mm, exact up to ROD_TO_MM): pieces of at least
+        MIN_CORE_MM3 whose rim, opened back within ``rest``, is no brighter than their inside (``is_solid``). They
+        are the body, which the seeds did not reach: a ring frame's far side between the seeds of its solid
+        junctions, its core grown in through the bracket (18037: 13 cm^3 of a 2,480 HU ring kept with the bone).
+        Over 200 CTs, such far pieces of the body were solid (rim -337 to +43 HU on the inside) and those of bone
+        were not (+228 to +1,489 HU). Voxels coarser than SOLID_MAX_VOXEL_MM, and openings under
+        SOLID_GROWN_MIN_OPENING_MM, tell no solid part."""
         solid = np.zeros(core.shape, dtype=bool)
         if self.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6 or opening < SOLID_GROWN_MIN_OPENING_MM:
             return solid
-        pieces, count = ndimage.label(core & (self._distance_to(bone, ROD_TO_MM) > ROD_TO_MM))
+        pieces, count = ndimage.label(core & (away > ROD_TO_MM))
         if count == 0:
             return solid
         sizes = np.bincount(pieces.ravel(), minlength=count + 1)
@@ -720,12 +722,12 @@ class _ObjectShape:
         overlap[0] = 0
         return labels == overlap.argmax() if overlap.max() > 0 else np.zeros(cores.shape, dtype=bool)
 
-    def _rods(self, core, bone, rest, body, opening, bone_going_on=CORTEX_CONTRAST_HU):
-        """The cells of ``core`` that leave ``bone`` (cells) as the bracket: pieces crossing the band ROD_FROM_MM to
-        ROD_TO_MM from the bone that lead through ``rest`` outside the bone to the ``body`` (cells by the spheres and
-        the posts' feet) and are solid (a thin shaft of the bone itself that the bracket is fixed into has its
-        marrow cavity; a flat bone whose cancellous core is above the threshold, its cortex)."""
-        away = self._distance_to(bone, ROD_TO_MM)
+    def _rods(self, core, bone, away, rest, body, opening, bone_going_on=CORTEX_CONTRAST_HU):
+        """The cells of ``core`` that leave ``bone`` (cells; ``away`` their distances to it, mm, exact up to
+        ROD_TO_MM) as the bracket: pieces crossing the band ROD_FROM_MM to ROD_TO_MM from the bone that lead
+        through ``rest`` outside the bone to the ``body`` (cells by the spheres and the posts' feet) and are solid (a
+        thin shaft of the bone itself that the bracket is fixed into has its marrow cavity; a flat bone whose
+        cancellous core is above the threshold, its cortex)."""
         pieces, count = ndimage.label(core & (away > ROD_FROM_MM) & (away <= ROD_TO_MM))
         rods = np.zeros(core.shape, dtype=bool)
         if count == 0:
