@@ -331,6 +331,20 @@ def test_a_body_that_no_sphere_tells_is_told_by_the_solid_part_its_bracket_leads
     assert score.coverage >= 0.9  # 97.0 and 94.2 % measured (96.9 and 94.1 % before, with the body's points)
 
 
+@pytest.mark.parametrize("seed", [13028, 15030])
+def test_a_body_the_threshold_breaks_into_pieces_still_leads_to_its_bracket(seed):
+    """The reference body about the threshold (200 HU) falls into pieces smaller than any bone, and the spheres' dim
+    parts stopped at them. 13028 (full profile): a ring frame of 215 HU in pieces of 0.3-0.7 cm^3, its 9.4 mm metal
+    bracket (2,252 HU) resting on a tibia from the ring's hub, three spheres cut: 7,125 of 20,290 IPC points on the
+    bracket. 15030: a dim ring (105 HU) on a 4.7 mm bracket of 222 HU inserted into a tibia: 103 points on it. The
+    pieces lead on as dim parts now: the bracket is reached, and cut off the bone."""
+    volume, truth = make_family_ct(seed, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 5000
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.8  # 83.8 and 88.6 % measured (95.0 and 88.5 % before, with the bracket's points)
+
+
 def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_a_solid_frame():
     """Family seed 12013 (full profile): a tibia (cortex 725 HU, 3 mm; marrow -54 HU) that the round field of view
     cuts along its length, a steel pin through it, 3 spheres in view. The cells the field of view's edge runs through
