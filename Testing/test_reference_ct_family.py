@@ -161,11 +161,12 @@ def test_a_dim_frame_split_by_specks_above_the_threshold_still_leads_to_its_brac
     """Plastic spheres (165 HU), posts and a ring frame (185 HU) all below the threshold, with noise specks above it
     that split the frame's dim parts, and a 303 HU bracket inserted into a flat bone: the dim parts from the spheres
     reached the specks but not the bracket, which stayed on the bone (2,916 IPC points on it). The dim parts start
-    from the objects the posts stand on too now. Since a solid part the bone's core grows is set apart (a piece of the
-    frame here), 2 points 0.5-0.9 mm off the bone lie on the bracket's foot."""
+    from the objects the posts stand on too now. (When a solid part the bone's core grows was first set apart, a piece
+    of the frame here, 2 points 0.5-0.9 mm off the bone lay on the bracket's foot, until the holes that noise leaves
+    in it were no longer taken for marrow.)"""
     volume, truth = make_family_ct(14053, "full")
     _, score = run(volume, truth)
-    assert score.found == score.visible == 4 and score.ipc_on_body <= 5
+    assert score.found == score.visible == 4 and score.ipc_on_body == 0
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.9
 
 
@@ -342,7 +343,22 @@ def test_a_body_the_threshold_breaks_into_pieces_still_leads_to_its_bracket(seed
     _, score = run(volume, truth)
     assert not score.refused and score.ipc_points > 5000
     assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
-    assert score.coverage >= 0.8  # 83.8 and 88.6 % measured (95.0 and 88.5 % before, with the bracket's points)
+    assert score.coverage >= 0.8  # 83.8 and 88.6 % measured (95.0 and 88.6 % before, with the bracket's points)
+
+
+@pytest.mark.parametrize("seed, overrides", [(33028, {"frame": "star", "bracket": "resting"}), (14163, None)])
+def test_the_holes_noise_leaves_in_a_dim_bracket_are_no_marrow(seed, overrides):
+    """Noise leaves holes below the 200 HU threshold in a bracket about it, which the cut took for the marrow of a
+    thin shaft of bone: the bracket was kept with the bone. 33028 (first met as a held-out draw; the star frame and
+    the resting bracket forced): a 10 mm bracket of 229 HU under 61 HU of noise on a tibia in air, 3,402 of 32,363
+    IPC points inside it. 14163 (full profile): an 11.5 mm bracket of 214 HU under 35 HU inserted into a tibia, 158
+    points. The holes are 48 and 34 HU darker than the bracket round them, where a marrow cavity is darker than its
+    cortex by a cortex's contrast (150 HU): they are no marrow now, and the bracket is cut off."""
+    volume, truth = make_family_ct(seed, "full", overrides=overrides)
+    _, score = run(volume, truth)
+    assert not score.refused and score.found == score.visible >= 3
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.9  # 94.5 and 96.5 % measured (95.2 and 97.7 % before, with the bracket's points)
 
 
 def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_a_solid_frame():

@@ -746,7 +746,7 @@ class _ObjectShape:
             if not np.isin(outside_bone[cells], to_body).any():
                 continue
             around = self._within(cells, opening + self.cell.max())
-            if (cavity & around).sum() >= 2:
+            if self._marrow(cavity & around, around):
                 continue
             # No cavity, but a cortex round a dimmer inside above the threshold (a flat bone's cancellous core): the
             # bone going on, not a rod.
@@ -755,6 +755,20 @@ class _ObjectShape:
             if contrast is None or contrast < bone_going_on:
                 rods |= cells
         return rods
+
+    def _marrow(self, cavity, around):
+        """True when the ``cavity`` cells (filled, below the threshold) are marrow: two or more, darker than the
+        object's cells ``around`` them by a cortex's contrast (CORTEX_CONTRAST_HU, the cells' means), not the holes
+        that noise leaves in a rod about the threshold (33028: a 229 HU bracket under 61 HU of noise, its holes 48 HU
+        darker than it; 14163's 34 HU, 31007's 36 HU). Over 214 family CTs, the other cavities met next to a bone's
+        core were 195-1,147 HU darker. Without the object's cells round them, they are taken for marrow."""
+        if cavity.sum() < 2:
+            return False
+        rim = around & self.mask
+        if not rim.any():
+            return True
+        darker = np.median(self.mean_hu[rim]) - np.median(self.mean_hu[cavity])
+        return darker >= CORTEX_CONTRAST_HU
 
     def _distance_to(self, cells, reach_mm):
         """Distances (mm) of every cell to the nearest of ``cells``, exact up to ``reach_mm`` and inf beyond: the
