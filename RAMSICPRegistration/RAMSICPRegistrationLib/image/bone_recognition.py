@@ -599,9 +599,10 @@ class _ObjectShape:
             return seeds
         return []
 
-    def _core_contrast(self, core, opening):
-        """The cortex contrast (``_cortex``) of the object's part that a ``core`` opened by ``opening`` mm holds."""
-        part = self.filled & self._within(core, opening)
+    def _core_contrast(self, core, opening, among=None):
+        """The cortex contrast (``_cortex``) of the part of ``among`` (cells; the filled object by default) that a
+        ``core`` opened by ``opening`` mm holds."""
+        part = (self.filled if among is None else among) & self._within(core, opening)
         return self._cortex(part, self._depth_of(part))
 
     def _bone_like(self, cells):
@@ -711,8 +712,7 @@ class _ObjectShape:
         for piece in np.argsort(-sizes)[:MAX_CORES]:
             if sizes[piece] * np.prod(self.cell) < MIN_CORE_MM3:
                 break
-            part = rest & self._within(pieces == piece, opening)
-            if is_solid(self._cortex(part, self._depth_of(part))):
+            if is_solid(self._core_contrast(pieces == piece, opening, rest)):
                 solid |= pieces == piece
         if solid.any():
             logger.info("the bone's core grew a solid part at an opening of %.1f mm: the body's, set apart", opening)
