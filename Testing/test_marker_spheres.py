@@ -6,7 +6,14 @@ import pytest
 from RAMSICPRegistrationLib.core.marker_geometry import pair_by_geometry
 from RAMSICPRegistrationLib.core.transforms import apply_transform, make_transform, rotation_about_axis
 from RAMSICPRegistrationLib.image.ct_segmentation import segment_bone
-from RAMSICPRegistrationLib.image.marker_spheres import detect_marker_spheres, fit_sphere
+from RAMSICPRegistrationLib.image.marker_spheres import (
+    CLEAN_FIT_MM,
+    RAYS,
+    _fibonacci_directions,
+    _island_out,
+    detect_marker_spheres,
+    fit_sphere,
+)
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 
 from conftest import analytic_volume, sphere_sdf
@@ -38,6 +45,34 @@ def test_fit_sphere_known_answer_with_outliers():
     centre, radius, rms, keep = fit_sphere(points)
     assert np.linalg.norm(centre - (1.0, 2.0, 3.0)) < 0.005 and abs(radius - RADIUS) < 0.005
     assert not keep[:100].any() and rms < 0.03
+
+
+@pytest.mark.parametrize("pushed_mm", [0.0, 0.1, 0.25])
+def test_a_cap_seen_apart_from_the_rest_is_measured_against_the_sphere_the_rest_fits(pushed_mm):
+    # A sphere sunk into a plate: its rays see the part below the plate's face (z < -0.2 r) and a cap through the
+    # plate's hole (z > 0.8 r); the band between is hidden. The cap's edge is pushed out by ``pushed_mm``: the
+    # measure is that, whatever the radius the sphere appears to have (0.1 mm small: blur on a convex edge).
+    directions = _fibonacci_directions(RAYS)
+    rays = np.nonzero((directions[:, 2] < -0.2) | (directions[:, 2] > 0.8))[0]
+    cap = directions[rays, 2] > 0.8
+    along = RADIUS - 0.1 + np.where(cap, pushed_mm, 0.0)
+    points = np.array([3.0, -2.0, 1.0]) + along[:, None] * directions[rays]
+    assert 0.1 < cap.mean() < 0.25
+    assert _island_out(points, rays, directions) == pytest.approx(pushed_mm, abs=0.005)
+    # The whole fit passes for clean (its RMS under CLEAN_FIT_MM), and is off along the hole's axis.
+    centre, _, rms, _ = fit_sphere(points)
+    assert rms < CLEAN_FIT_MM and abs(centre[2] - 1.0) >= 0.35 * pushed_mm
+
+
+def test_an_edge_in_one_piece_or_in_two_halves_has_no_cap_apart():
+    directions = _fibonacci_directions(RAYS)
+    points = RADIUS * directions
+    one_piece = np.nonzero(directions[:, 2] < 0.6)[0]  # a post's or a frame's side hidden
+    assert _island_out(points[one_piece], one_piece, directions) == 0.0
+    # Two caps as large (a frame's band round the middle): neither is the sphere's rest, though one is 0.3 mm out.
+    halves = np.nonzero(np.abs(directions[:, 2]) > 0.3)[0]
+    along = RADIUS + np.where(directions[halves, 2] > 0.0, 0.3, 0.0)
+    assert _island_out(along[:, None] * directions[halves], halves, directions) == 0.0
 
 
 def test_four_spheres_found_to_0_1_mm_in_tool_order():
