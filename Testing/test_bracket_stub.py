@@ -72,6 +72,24 @@ def test_the_line_of_a_bracket_meeting_the_bone_head_on_holds_its_stub_and_the_r
     assert line.contains(inside).all() and not line.contains(outside).any()
 
 
+def test_a_plate_within_the_end_of_the_bracket_leaves_its_line_and_radius():
+    """A rod of 1.5 mm on the same bone, its first 3 mm the bone's, its body's part ending 5 mm past that (z = 38 mm)
+    in a plate 11 mm thick and 40 mm wide: within the 8 mm the bracket's end is read over, the plate is deeper (3 mm)
+    than the rod, and gave the end its radius and its axis (across the plate). The rod's radius is read where its
+    depth stops growing away from the bone, the plate is opened off the end, and the line runs down the rod
+    (family seed 18070: 490 IPC points on a bracket's stub before)."""
+    mask, body, _, _ = _bone_and_rod(bone_radius=10.0, rod_radius=1.5, stub_mm=3.0)
+    points = _grid(mask.shape)
+    plate = (np.abs(points[..., 0] - 30.0) <= 20.0) & (np.abs(points[..., 1] - 20.0) <= 20.0)
+    body = (body & (points[..., 2] <= 38.0)) | (plate & (points[..., 2] >= 38.0) & (points[..., 2] <= 49.0))
+    line = bracket_line(mask, body, SPACING)
+    assert line is not None
+    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.05)
+    assert 1.0 <= line.radius_mm <= 2.0
+    end = line.point_mm + line.tip * line.direction
+    assert abs(end[2] - 33.0) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
+
+
 def test_a_bracket_resting_along_the_bone_has_no_line():
     """A rod of 3 mm lying along the top of the same bone: its distance to the bone does not fall along it."""
     points = _grid((120, 80, 100))

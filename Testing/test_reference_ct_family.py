@@ -266,6 +266,18 @@ def test_the_line_of_a_bracket_is_read_beyond_the_bone_box_and_on_the_side_it_co
     assert score.coverage >= (0.84 if seed == 15028 else 0.88)  # 86 and 91 % measured, as before
 
 
+def test_a_plate_within_the_end_of_a_bracket_does_not_hide_its_line():
+    """Family seed 18070 (full profile): a 7.5 mm bracket inserted into a tibia from an 11.4 mm plate whose face lies
+    within the 8 mm of the bracket's end that its line is read over. The plate, deeper than the bracket, gave the end a
+    radius of 6 mm and no line: 490 of 33,196 IPC points lay on the bracket's stub, 4-9 mm off the bone, with exit 0.
+    The bracket's radius is read where its depth stops growing away from the bone now, and the plate is opened off
+    its end: none."""
+    volume, truth = make_family_ct(18070, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.95  # 96.4 % measured, as before
+
+
 @pytest.mark.parametrize("seed", [16088, 14020])
 def test_a_wire_or_thin_rod_joined_to_the_bone_leaves_no_ipc_off_it(seed):
     """Full profile. 16088: a wire (300-3,071 HU, 0.6-2.4 mm wide in the family) touching a tibia: its surface was

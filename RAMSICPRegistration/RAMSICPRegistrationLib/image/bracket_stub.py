@@ -31,6 +31,11 @@ LINE_MARGIN_MM = 2.0
 #: ... when the bracket meets the bone head-on: along its end the distance to the bone falls steadily (the
 #: correlation of the two over the end's voxels at least this; a bracket resting along the bone has none).
 HEAD_ON = 0.9
+#: Going away from the bone, the bracket's depth grows with the distance up to its radius: it has reached it where
+#: it lags the distance by PLATEAU_LAG_MM; a part of its end deeper than that by FRAME_DEEPER_MM is a frame's or a
+#: plate's (mm).
+PLATEAU_LAG_MM = 1.0
+FRAME_DEEPER_MM = 1.0
 
 
 class _BracketEnd:
@@ -57,6 +62,21 @@ class _BracketEnd:
         end = self.rest & (self.to_bone <= END_MM)
         self.end = end if end.any() else None
 
+    def radius(self):
+        """The bracket's radius (mm): its end's depth, at most MAX_RADIUS_MM. A frame or plate within END_MM of the bone
+        is deeper: where the end holds a part deeper by FRAME_DEEPER_MM than the depth at which, going away from the
+        bone, the depth stops growing with the distance (lags it by PLATEAU_LAG_MM), that depth is the bracket's
+        (family seed 18070: a 7.5 mm bracket inserted into a tibia from an 11.4 mm plate, its end's depth 6.0 mm,
+        the plateau 3.5 mm)."""
+        to_bone, depth = self.to_bone[self.end], self.depth[self.end]
+        order = np.argsort(to_bone, kind="stable")
+        deepest = np.maximum.accumulate(depth[order])
+        plateau = np.nonzero(deepest <= to_bone[order] - PLATEAU_LAG_MM)[0]
+        radius = deepest[-1]
+        if len(plateau) and radius > deepest[plateau[0]] + FRAME_DEEPER_MM:
+            radius = deepest[plateau[0]]
+        return min(float(radius), MAX_RADIUS_MM)
+
 
 def bracket_stub(mask, body, spacing):
     """(I, J, K) booleans over a box: the voxels of the bone (``mask``) that are the stub of the bracket whose rest
@@ -67,8 +87,7 @@ def bracket_stub(mask, body, spacing):
     if meeting.end is None:
         return stub
     box, bone, rest = meeting.box, meeting.bone, meeting.rest
-    # The bracket's radius where it meets the bone: the depth of the body's voxels near the bone.
-    radius = min(float(meeting.depth[meeting.end].max()) + MARGIN_MM, MAX_RADIUS_MM)
+    radius = min(meeting.radius() + MARGIN_MM, MAX_RADIUS_MM)
     # An opening by a ball of that radius (two distance transforms): the bone's parts thinner than it go.
     core = ndimage.distance_transform_edt(bone, sampling=spacing) > radius
     opened = ndimage.distance_transform_edt(~core, sampling=spacing) <= radius
@@ -108,6 +127,14 @@ class BracketLine:
         )
 
 
+def _opened(mask, radius, spacing):
+    """The parts of a boolean array an opening by a ball of ``radius`` (mm) keeps: those thicker than the ball."""
+    core = ndimage.distance_transform_edt(mask, sampling=spacing) > radius
+    if not core.any():
+        return core
+    return ndimage.distance_transform_edt(~core, sampling=spacing) <= radius
+
+
 def _largest_piece(mask):
     """The largest connected piece of a boolean array: the bracket's end on the side it comes from, not its tip
     where it goes through a flat bone and out of its far side (family seed 12023: 149 IPC points on that tip)."""
@@ -143,9 +170,12 @@ def bracket_line(mask, body, spacing):
     meeting = _BracketEnd(mask, body, spacing)
     if meeting.end is None or meeting.end.sum() < 10:
         return None
-    radius = min(float(meeting.depth[meeting.end].max()), MAX_RADIUS_MM)
-    # A thick bracket's first END_MM are wider than long: its line is read over three of its radii.
-    end = _largest_piece(meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius)))
+    radius = meeting.radius()
+    # A thick bracket's first END_MM are wider than long: its line is read over three of its radii, on the parts no
+    # thicker than the bracket (an opening by a ball MARGIN_MM wider takes a frame or plate off).
+    near = meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius))
+    thick = _opened(meeting.rest, radius + MARGIN_MM, spacing)
+    end = _largest_piece(near & ~thick if (near & ~thick).any() else near)
     positions = (np.argwhere(end) + meeting.low) * spacing
     to_bone = meeting.to_bone[end]
     centre = positions.mean(axis=0)
