@@ -29,6 +29,16 @@ def _bone_and_rod(bone_radius, rod_radius, stub_mm):
     return bone | stub, rod & ~bone & ~stub, stub, past
 
 
+def _assert_down_the_rod(line, radius_mm, end_z, atol):
+    """The line runs down the rod's axis (x = 30, y = 20 mm, towards -z) from the body's end at ``end_z`` (mm, within
+    1 mm), with the rod's radius within 0.5 mm."""
+    assert line is not None
+    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=atol)
+    assert abs(line.radius_mm - radius_mm) <= 0.5
+    end = line.point_mm + line.tip * line.direction
+    assert abs(end[2] - end_z) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
+
+
 def test_the_stub_of_a_rod_on_a_thick_bone_is_found_and_nothing_of_the_bone():
     mask, body, stub, past = _bone_and_rod(bone_radius=10.0, rod_radius=3.0, stub_mm=5.0)
     found = bracket_stub(mask, body, SPACING)
@@ -54,11 +64,7 @@ def test_the_line_of_a_bracket_meeting_the_bone_head_on_holds_its_stub_and_the_r
     ring round its foot are on it, the bone's surface away from the rod and the bone's far side are not."""
     mask, body, _, _ = _bone_and_rod(bone_radius=10.0, rod_radius=3.0, stub_mm=5.0)
     line = bracket_line(mask, body, SPACING)
-    assert line is not None
-    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.02)
-    assert 2.5 <= line.radius_mm <= 3.5
-    end = line.point_mm + line.tip * line.direction
-    assert abs(end[2] - 35.0) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
+    _assert_down_the_rod(line, radius_mm=3.0, end_z=35.0, atol=0.02)
     radius = line.radius_mm + LINE_MARGIN_MM
     inside = np.array([[30.0, 20.0, 32.0], [30.0, 20.0 + 3.2, 33.0], [30.0 + radius - 0.2, 20.0, 30.0]])
     outside = np.array(
@@ -82,12 +88,7 @@ def test_a_plate_within_the_end_of_the_bracket_leaves_its_line_and_radius():
     points = _grid(mask.shape)
     plate = (np.abs(points[..., 0] - 30.0) <= 20.0) & (np.abs(points[..., 1] - 20.0) <= 20.0)
     body = (body & (points[..., 2] <= 38.0)) | (plate & (points[..., 2] >= 38.0) & (points[..., 2] <= 49.0))
-    line = bracket_line(mask, body, SPACING)
-    assert line is not None
-    np.testing.assert_allclose(line.direction, [0.0, 0.0, -1.0], atol=0.05)
-    assert 1.0 <= line.radius_mm <= 2.0
-    end = line.point_mm + line.tip * line.direction
-    assert abs(end[2] - 33.0) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
+    _assert_down_the_rod(bracket_line(mask, body, SPACING), radius_mm=1.5, end_z=33.0, atol=0.05)
 
 
 def test_a_bracket_resting_along_the_bone_has_no_line():
