@@ -88,9 +88,8 @@ def bracket_stub(mask, body, spacing):
         return stub
     box, bone, rest = meeting.box, meeting.bone, meeting.rest
     radius = min(meeting.radius() + MARGIN_MM, MAX_RADIUS_MM)
-    # An opening by a ball of that radius (two distance transforms): the bone's parts thinner than it go.
-    core = ndimage.distance_transform_edt(bone, sampling=spacing) > radius
-    opened = ndimage.distance_transform_edt(~core, sampling=spacing) <= radius
+    # An opening by a ball of that radius: the bone's parts thinner than it go.
+    opened = _opened(ndimage.distance_transform_edt(bone, sampling=spacing), radius, spacing)
     thin, count = ndimage.label(bone & ~opened)
     if count == 0:
         return stub
@@ -127,9 +126,10 @@ class BracketLine:
         )
 
 
-def _opened(mask, radius, spacing):
-    """The parts of a boolean array an opening by a ball of ``radius`` (mm) keeps: those thicker than the ball."""
-    core = ndimage.distance_transform_edt(mask, sampling=spacing) > radius
+def _opened(depth, radius, spacing):
+    """What an opening by a ball of ``radius`` (mm) keeps of a set whose distance transform (mm) is ``depth``: its
+    parts thicker than the ball (none when no voxel is deeper than the radius)."""
+    core = depth > radius
     if not core.any():
         return core
     return ndimage.distance_transform_edt(~core, sampling=spacing) <= radius
@@ -174,8 +174,8 @@ def bracket_line(mask, body, spacing):
     # A thick bracket's first END_MM are wider than long: its line is read over three of its radii, on the parts no
     # thicker than the bracket (an opening by a ball MARGIN_MM wider takes a frame or plate off).
     near = meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius))
-    thick = _opened(meeting.rest, radius + MARGIN_MM, spacing)
-    end = _largest_piece(near & ~thick if (near & ~thick).any() else near)
+    thin = near & ~_opened(meeting.depth, radius + MARGIN_MM, spacing)
+    end = _largest_piece(thin if thin.any() else near)
     positions = (np.argwhere(end) + meeting.low) * spacing
     to_bone = meeting.to_bone[end]
     centre = positions.mean(axis=0)
