@@ -5,6 +5,7 @@ import numpy as np
 from RAMSICPRegistrationLib.image.bracket_stub import (
     LINE_LENGTH_MM,
     LINE_MARGIN_MM,
+    MAX_LINE_MM,
     bracket_line,
     bracket_line_beyond,
     bracket_stub,
@@ -134,3 +135,50 @@ def test_a_bracket_through_a_flat_bone_is_read_on_its_side_and_its_tip_beyond_is
     assert abs(end[2] - 25.5) <= 1.0 and np.hypot(end[0] - 30.0, end[1] - 20.0) <= 0.2
     tip_side = np.array([[33.0, 20.0, 13.0], [30.0, 17.0, 12.5]])
     assert line.contains(tip_side).all() and not line.contains(np.array([[60.0, 20.0, 14.9]])).any()
+
+
+def _rod_through_a_slab(rod_from_z, cortex_hu, bottom_z=10.0):
+    """A rod of 3 mm (1500 HU) from z = ``rod_from_z`` up through a flat bone (z ``bottom_z``-30 mm: 2 mm cortices
+    of ``cortex_hu``, 300 HU between) in air. Returns (bone mask, body mask, CT image)."""
+    points = _grid((120, 80, 100))
+    z = points[..., 2]
+    bone = (z >= bottom_z) & (z <= 30.0)
+    rod = (np.hypot(points[..., 0] - 30.0, points[..., 1] - 20.0) <= 3.0) & (z >= rod_from_z)
+    image = np.full(bone.shape, -1000.0)
+    image[bone] = 300.0
+    image[bone & ((z <= bottom_z + 2.0) | (z >= 28.0))] = cortex_hu
+    image[rod] = 1500.0
+    return bone, rod & ~bone, image
+
+
+def test_a_bracket_through_the_bone_is_followed_to_its_tip():
+    """The rod goes through the 20 mm bone and 3 mm out of its far side (its tip at z = 7 mm, 23.5 mm past the body's
+    end at z = 30.5): with the CT the line runs along the rod's axis to the tip and LINE_MARGIN_MM past it, and holds
+    the tip's side; without the CT it stops at LINE_LENGTH_MM (family seeds 16094, 13085, 21083: 59-148 IPC points on
+    a 1300-1600 HU bracket's tip 20-25 mm past the body's end)."""
+    bone, body, image = _rod_through_a_slab(rod_from_z=7.0, cortex_hu=1000.0)
+    line = bracket_line(bone, body, SPACING, image)
+    _assert_down_the_rod(line, radius_mm=3.0, end_z=30.5, atol=0.02)
+    end = (line.point_mm + line.tip * line.direction)[2]
+    assert abs(line.length_mm - (end - 7.0 + LINE_MARGIN_MM)) <= 0.6
+    tip_side = np.array([[33.0, 20.0, 7.5], [30.0, 17.0, 8.0]])  # the tip's side, out of the far side
+    beyond = np.array([[30.0, 20.0, 7.0 - LINE_MARGIN_MM - 1.0], [60.0, 20.0, 9.5]])  # past it; the far side away
+    assert line.contains(tip_side).all() and not line.contains(beyond).any()
+    assert bracket_line(bone, body, SPACING).length_mm == LINE_LENGTH_MM
+    assert not bracket_line(bone, body, SPACING).contains(tip_side).any()
+
+
+def test_a_bracket_ending_on_a_brighter_cortex_or_within_the_bone_keeps_the_lines_length():
+    """The rod ending on the far cortex (z = 12 mm), brighter than it (2500 HU): its axis turns brighter, not dimmer,
+    and the far side's surface under it stays out of the line. Ending in the bone 10 mm in (z = 20 mm), or 25 mm in
+    (a slab 30 mm thick, the rod's tip at z = 5 mm, in its 300 HU inside): its axis turns dimmer, but inside the
+    bone, not out of it; the line keeps LINE_LENGTH_MM. Nowhere longer than MAX_LINE_MM."""
+    bone, body, image = _rod_through_a_slab(rod_from_z=12.0, cortex_hu=2500.0)
+    line = bracket_line(bone, body, SPACING, image)
+    assert line.length_mm == LINE_LENGTH_MM
+    assert not line.contains(np.array([[30.0, 20.0, 9.5]])).any()  # the far side's surface under the rod
+    bone, body, image = _rod_through_a_slab(rod_from_z=20.0, cortex_hu=1000.0)
+    assert bracket_line(bone, body, SPACING, image).length_mm == LINE_LENGTH_MM
+    bone, body, image = _rod_through_a_slab(rod_from_z=5.0, cortex_hu=1000.0, bottom_z=0.5)
+    assert bracket_line(bone, body, SPACING, image).length_mm == LINE_LENGTH_MM
+    assert LINE_LENGTH_MM < MAX_LINE_MM

@@ -532,3 +532,14 @@ def test_a_metal_sphere_with_a_shallow_cap_cut_off_is_flagged_not_used():
     assert flagged and flagged[0].status == "partial" and "inside it (a cap missing?)" in flagged[0].note
     errors = [np.linalg.norm(s.centre - truth.marker_centres[s.number - 1]) for s in image.usable]
     assert max(errors) < 0.05
+
+
+def test_a_bracket_through_the_bone_is_followed_to_its_tip_out_of_the_far_side():
+    """Family seed 16094 (full profile): a 6.2 mm bracket of 1,515 HU inserted into a tibia goes through it and out
+    of its far side, 20-25 mm past the body's end, beyond the 20 mm its line was followed: 148 IPC points lay on its
+    tip, with exit 0. Its axis stays at the bracket's HU through the bone and out, and the line is followed to its
+    tip now: none."""
+    volume, truth = make_family_ct(16094, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.80  # 82.5 % measured, as before

@@ -31,6 +31,18 @@ LINE_MARGIN_MM = 2.0
 #: ... when the bracket meets the bone head-on: along its end the distance to the bone falls steadily (the
 #: correlation of the two over the end's voxels at least this; a bracket resting along the bone has none).
 HEAD_ON = 0.9
+#: A bracket whose axis stays at its own HU (within THROUGH_BAND of it, at least THROUGH_BAND_HU) past LINE_LENGTH_MM
+#: goes on through the bone: the line then runs to where the axis turns dimmer (for a millimetre), and LINE_MARGIN_MM
+#: past it for the tip's blur, at most MAX_LINE_MM, when it goes through the bone and out (a ring TIP_RING_MM round
+#: it lies in the bone over THROUGH_BONE of it somewhere, over at most OUT_OF_BONE along its last TIP_FREE_MM:
+#: ``_through_length``).
+THROUGH_BAND = 0.25
+THROUGH_BAND_HU = 100.0
+MAX_LINE_MM = 60.0
+TIP_RING_MM = 0.5
+TIP_FREE_MM = 1.5
+THROUGH_BONE = 0.75
+OUT_OF_BONE = 0.5
 #: Going away from the bone, the bracket's depth grows with the distance up to its radius: it has reached it where
 #: it lags the distance by PLATEAU_LAG_MM; a part of its end deeper than that by FRAME_DEEPER_MM is a frame's or a
 #: plate's (mm).
@@ -107,12 +119,14 @@ class BracketLine:
     bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies
     along it, as far as the bracket reaches into the bone. ``contains(positions_mm)`` tells the IPC points on it:
     within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to LINE_LENGTH_MM
-    past it (a disc round where the bracket enters the bone goes with them: the ring the bracket hides). Family
-    seeds 14013, 15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined
-    (longer than a stub may be)."""
+    past it (a disc round where the bracket enters the bone goes with them: the ring the bracket hides), or
+    ``length_mm`` past it for a bracket that goes through the bone (``_through_length``). Family seeds 14013,
+    15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined (longer than a stub
+    may be)."""
 
-    def __init__(self, point_mm, direction, radius_mm, tip):
+    def __init__(self, point_mm, direction, radius_mm, tip, length_mm=LINE_LENGTH_MM):
         self.point_mm, self.direction, self.radius_mm, self.tip = point_mm, direction, radius_mm, tip
+        self.length_mm = length_mm
 
     def contains(self, positions_mm):
         """(M,) booleans for (M, 3) positions in mm (index times spacing, the frame of the arrays fitted)."""
@@ -122,7 +136,7 @@ class BracketLine:
         return (
             (across <= self.radius_mm + LINE_MARGIN_MM)
             & (along >= self.tip - 2.0)
-            & (along <= self.tip + LINE_LENGTH_MM)
+            & (along <= self.tip + self.length_mm)
         )
 
 
@@ -144,9 +158,10 @@ def _largest_piece(mask):
     return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
 
 
-def bracket_line_beyond(mask, body, low, spacing):
+def bracket_line_beyond(mask, body, low, spacing, image=None):
     """``bracket_line`` read on the body beyond the bone's box too: ``mask`` the bone over its box, which starts
-    at voxel ``low`` (3,) of ``body`` (the reference body's booleans over a larger box). The box round a bone
+    at voxel ``low`` (3,) of ``body`` (the reference body's booleans over a larger box; ``image`` the CT over that
+    box, or None). The box round a bone
     leaves a thick bracket within a few mm of it, where its end is wider than long and gives no line (family seed
     15028: a 10.9 mm bracket inserted into an 18 mm tibia, 354 IPC points on the stub). Returns the BracketLine in
     the frame index times spacing of ``mask``, or None."""
@@ -157,15 +172,17 @@ def bracket_line_beyond(mask, body, low, spacing):
     wide_high = np.minimum(low + np.array(mask.shape) + reach, body.shape)
     wide = np.zeros(wide_high - wide_low, dtype=bool)
     wide[tuple(slice(a, a + n) for a, n in zip(low - wide_low, mask.shape))] = mask
-    line = bracket_line(wide, body[tuple(slice(a, b) for a, b in zip(wide_low, wide_high))], spacing)
+    crop = tuple(slice(a, b) for a, b in zip(wide_low, wide_high))
+    line = bracket_line(wide, body[crop], spacing, None if image is None else image[crop])
     if line is not None:
         line.point_mm = line.point_mm - (low - wide_low) * spacing
     return line
 
 
-def bracket_line(mask, body, spacing):
+def bracket_line(mask, body, spacing, image=None):
     """The BracketLine of the ``body`` (the body's voxels cut off the bone ``mask``, same box; ``spacing`` (3,) mm)
-    in the frame index times spacing of these arrays, or None when the bracket does not meet the bone head-on."""
+    in the frame index times spacing of these arrays, or None when the bracket does not meet the bone head-on.
+    With ``image`` (the CT, HU, same box) a bracket that goes through the bone is followed to its tip."""
     spacing = np.asarray(spacing, float)
     meeting = _BracketEnd(mask, body, spacing)
     if meeting.end is None or meeting.end.sum() < 10:
@@ -188,4 +205,45 @@ def bracket_line(mask, body, spacing):
         return None
     if correlation > 0:  # the line points towards the bone: the distance to it falls along the line
         direction, along = -direction, -along
-    return BracketLine(centre, direction, radius, float(along.max()))
+    tip = float(along.max())
+    length = LINE_LENGTH_MM
+    if image is not None:
+        core = end & (meeting.depth >= 0.5 * meeting.depth[end].max())
+        hu = float(np.median(image[meeting.box][core]))
+        start = centre + tip * direction
+        length = _through_length(image, mask, start, direction, hu, radius, spacing)
+    return BracketLine(centre, direction, radius, tip, length)
+
+
+def _through_length(image, bone, start_mm, direction, hu, radius, spacing):
+    """How far (mm) the line runs past the body's end (``start_mm`` (3,), in the frame index times ``spacing`` of
+    ``image`` and of the ``bone``'s booleans) along ``direction``, for a bracket of ``hu`` (its end's median) and
+    ``radius`` (mm): LINE_LENGTH_MM, or more when the image along the axis stays within its band (THROUGH_BAND of its
+    HU, at least THROUGH_BAND_HU) farther and then turns dimmer for a millimetre, having gone through the ``bone``
+    and out of it (THROUGH_BONE, OUT_OF_BONE): its tip, out of the bone's far side (family seeds 16094, 13085,
+    21083: a 6-11 mm bracket of 1300-1600 HU through a bone, 59-148 IPC points on its tip 20-25 mm past the body's
+    end). A run that ends brighter (a cortex brighter than the bracket), inside the bone, or along it without going
+    through it (a line read along a fibula's cortex: family seed 19020, 304 IPC points on the bone lost), or that
+    goes on to MAX_LINE_MM, is not followed."""
+    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+    steps = np.arange(0.0, MAX_LINE_MM + 1e-6, 0.5)
+    axis = start_mm + steps[:, None] * direction
+    values = ndimage.map_coordinates(image, (axis / spacing).T, order=1, mode="nearest")
+    out = np.abs(values - hu) > band
+    leaves = np.nonzero(out[:-1] & out[1:])[0]  # a millimetre out of the band
+    if len(leaves) == 0 or values[leaves[0]] > hu or steps[leaves[0]] + LINE_MARGIN_MM <= LINE_LENGTH_MM:
+        return LINE_LENGTH_MM
+    end = steps[leaves[0]]
+    # The share of a ring TIP_RING_MM round the bracket that lies in the bone, along the run: it goes through the bone
+    # (THROUGH_BONE of a ring in it somewhere) and comes out (at most OUT_OF_BONE over its last TIP_FREE_MM).
+    across = np.linalg.svd(direction[None, :])[2][1:]  # two unit vectors across the axis
+    angles = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    ring = (radius + TIP_RING_MM) * (np.cos(angles)[:, None] * across[0] + np.sin(angles)[:, None] * across[1])
+    run = steps < end
+    around = (axis[run][:, None, :] + ring[None, :, :]).reshape(-1, 3) / spacing
+    in_bone = ndimage.map_coordinates(bone.astype(np.uint8), around.T, order=0, mode="constant")
+    share = in_bone.reshape(-1, len(angles)).mean(axis=1)
+    tip = steps[run] >= end - TIP_FREE_MM
+    if share.max() < THROUGH_BONE or share[tip].mean() > OUT_OF_BONE:
+        return LINE_LENGTH_MM
+    return float(min(end + LINE_MARGIN_MM, MAX_LINE_MM))

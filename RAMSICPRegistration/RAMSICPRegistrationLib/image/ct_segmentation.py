@@ -342,7 +342,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         mask, other = mask & ~wire, other | wire
     line = None
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
-        line = bracket_line_beyond(mask, segmentation.body, low, volume.spacing)
+        line = bracket_line_beyond(mask, segmentation.body, low, volume.spacing, segmentation.smoothed)
         stub = bracket_stub(mask, segmentation.body[box], volume.spacing)
         if stub.any():
             mask, other = mask & ~stub, other | stub
