@@ -70,3 +70,22 @@ def test_a_notch_narrower_than_the_plug_is_filled_a_wider_one_is_not():
 
 def test_no_open_side_no_envelope():
     assert bone_envelope(np.ones((5, 5, 5), dtype=bool), [], np.ones(3)) is None
+
+
+@pytest.mark.parametrize("hole_mm", [9.0, 12.0])
+@pytest.mark.parametrize("spacing", [(0.5, 0.5, 0.5), (0.4, 0.4, 1.0)])
+def test_the_plug_of_a_bracket_hole_reaches_its_mouth(hole_mm, spacing):
+    """The same shell with a hole as wide as a bracket: the plug fills the channel up to its mouth (97 % of it within
+    1 mm of the outer surface, 75 % within 0.5 mm), so the hole's wall there faces into the envelope (family seeds
+    14026, 20099: IPC points on such walls 0.5-2 mm under the surface). The one-cell trim of the rest of the envelope
+    left a quarter to two thirds of that band out."""
+    spacing = np.array(spacing)
+    shape = np.rint(44.0 / spacing).astype(int)
+    points = _grid(shape, spacing) - shape * spacing / 2.0
+    radius = np.linalg.norm(points, axis=-1)
+    hole = (np.hypot(points[..., 0], points[..., 1]) <= hole_mm / 2.0) & (points[..., 2] > 0)
+    envelope = bone_envelope((radius <= 15.0) & (radius >= 12.5) & ~hole, ALL_SIDES, spacing)
+    channel = hole & (radius > 12.5)
+    assert envelope[channel & (radius < 14.0)].mean() >= 0.97
+    assert envelope[channel & (radius < 14.5)].mean() >= 0.75
+    assert not envelope[radius >= 15.5].any()
