@@ -78,7 +78,7 @@ def test_the_plug_of_a_bracket_hole_reaches_its_mouth(hole_mm, spacing):
     """The same shell with a hole as wide as a bracket: the plug fills the channel up to its mouth (97 % of it within
     1 mm of the outer surface, 75 % within 0.5 mm), so the hole's wall there faces into the envelope (family seeds
     14026, 20099: IPC points on such walls 0.5-2 mm under the surface). The one-cell trim of the rest of the envelope
-    left a quarter to two thirds of that band out."""
+    left a fifth to two thirds of its outer half millimetre out."""
     spacing = np.array(spacing)
     shape = np.rint(44.0 / spacing).astype(int)
     points = _grid(shape, spacing) - shape * spacing / 2.0

@@ -161,10 +161,9 @@ def _largest_piece(mask):
 def bracket_line_beyond(mask, body, low, spacing, image=None):
     """``bracket_line`` read on the body beyond the bone's box too: ``mask`` the bone over its box, which starts
     at voxel ``low`` (3,) of ``body`` (the reference body's booleans over a larger box; ``image`` the CT over that
-    box, or None). The box round a bone
-    leaves a thick bracket within a few mm of it, where its end is wider than long and gives no line (family seed
-    15028: a 10.9 mm bracket inserted into an 18 mm tibia, 354 IPC points on the stub). Returns the BracketLine in
-    the frame index times spacing of ``mask``, or None."""
+    box, or None). The box round a bone leaves a thick bracket within a few mm of it, where its end is wider than
+    long and gives no line (family seed 15028: a 10.9 mm bracket inserted into an 18 mm tibia, 354 IPC points on the
+    stub). Returns the BracketLine in the frame index times spacing of ``mask``, or None."""
     spacing = np.asarray(spacing, float)
     low = np.asarray(low, int)
     reach = np.ceil(max(END_MM, 3.0 * MAX_RADIUS_MM) / spacing).astype(int) + 1
