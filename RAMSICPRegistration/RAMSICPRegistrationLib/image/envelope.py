@@ -18,7 +18,7 @@ added.
 import numpy as np
 from scipy import ndimage
 
-from .morphology import block_any, dilate_by_cube, labelled, unblock
+from .morphology import block_any, dilate_by_cube, labelled, open_by_cube, unblock
 
 #: Holes in the cortex narrower than this (mm) are plugged (the family's brackets are 4-12 mm wide).
 HOLE_MM = 14.0
@@ -56,6 +56,5 @@ def bone_envelope(mask, open_sides, spacing, padding=None):
     # closing put in a hole (its part thicker than 3 cells) keeps that cell: it reaches the hole's mouth, so the
     # wall there faces into it (family seeds 14026, 20099: 58 and 49 IPC points on the walls of a dim bracket's
     # hole, 0.5-2 mm under the bone's surface, where the trimmed plug did not reach).
-    plug = closed & ~cells
-    enclosed = ~dilate_by_cube(~enclosed, 3) | (dilate_by_cube(~dilate_by_cube(~plug, 3), 3) & plug)
+    enclosed = ~dilate_by_cube(~enclosed, 3) | open_by_cube(closed & ~cells, 3)
     return mask | unblock(enclosed, block, mask.shape)
