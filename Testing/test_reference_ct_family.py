@@ -147,6 +147,32 @@ def test_a_dim_bracket_fixed_into_a_bone_in_air_leaves_no_stub_in_the_ipc(seed):
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage > 0.95
 
 
+@pytest.mark.parametrize("seed", [19027, 19077])
+def test_a_dim_bracket_resting_on_the_bone_adds_no_surface_without_a_cortex(seed):
+    """19027: a 6 mm bracket of 271 HU resting on a fibula in air, its reference body out of view (no sphere to tell
+    it by): the surface level (half-max, 251 HU) is below the bracket, and 1,287 IPC points lay on it, 1 mm inside.
+    19077: a 202 HU bracket's stub on a flat bone in air, at a 63 HU level: 103 points 8-10 mm off the bone. Under
+    them the CT rises above the level by less than a fifth of the level's own rise over the air (the bracket's HU is
+    the level's, near enough), where a cortex rises as high again. 27 and 9 points are left: the corner the blur
+    fills where the bracket meets the bone (0.5-0.9 mm off it), and small pieces of surface round noise holes inside
+    the bracket or cut off on the stub, whose own rise is not the bracket's."""
+    volume, truth = make_family_ct(seed, "full")
+    _, score = run(volume, truth)
+    assert score.ipc_on_body <= 0.0025 * score.ipc_points  # 0.21 and 0.02 % measured
+    assert score.ipc_on_bone >= 0.997 * score.ipc_points and score.coverage > 0.95  # 96.3 and 95.7 %, as before
+
+
+def test_a_level_read_off_a_rim_brighter_than_the_cortex_leaves_the_bone_in_the_ipc():
+    """Family seed 13023: a metal bracket (1,790 HU) inserted into a long bone whose cortex is 964 HU. The level read
+    round the bone (770 HU) takes the bracket's rim for the cortex, and lies near the top of every point's rise: the
+    bone's whole surface looks like a part without a cortex, and the first form of that rule left 1 IPC point of
+    5,153. It waits for the level read across the surface (496 HU), where the cortex's rise is twice the level's."""
+    volume, truth = make_family_ct(13023, "full")
+    _, score = run(volume, truth)
+    assert score.ipc_points > 5000 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage > 0.95  # 95.5 %, as before
+
+
 def test_spheres_sunk_into_a_brighter_plate_still_say_where_the_body_is():
     """Spheres of 690 HU sunk into a 5 mm plate of 1,900 HU (the generator calls all four hidden), the plate joined to
     a tibia by a metal bracket: no sphere fits, so nothing said where the body was, and the IPC was the plate's
