@@ -364,17 +364,14 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
     # Down the gradient of the surfaced image, from the bone to what is outside it: where the checks below look.
     down = _downhill(image, vertices_ijk, volume.spacing)
-    # The CT as it was across the surface: the cortex's peak under it and what it touches.
-    peak, beyond = _across_surface(segmentation.smoothed[box], vertices_ijk, down, volume.spacing)
+    original = segmentation.smoothed[box]  # the CT as it was, denoised
     # A part about as bright as the surface level, joined to the bone (a dim bracket resting on it), has a surface
     # at that level too, with no cortex under it.
-    dim = _without_cortex(peak, beyond, level)
+    dim = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
     if level < segmentation.threshold_hu:
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
-        dim |= _on_a_dim_stub(
-            segmentation.smoothed[box], vertices_ijk, down, peak, level, segmentation.threshold_hu, volume.spacing
-        )
+        dim |= _on_a_dim_stub(original, vertices_ijk, down, level, segmentation.threshold_hu, volume.spacing)
     if dim.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim)
         down = down[~dim]
@@ -500,14 +497,15 @@ def _facing_inward(vertices, down, mask, spacing):
     return mask[tuple(outside.T)]
 
 
-def _on_a_dim_stub(original, vertices, down, peak, level, threshold, spacing):
+def _on_a_dim_stub(original, vertices, down, level, threshold, spacing):
     """(M,) booleans: iso-surface vertices (M, 3) on a dim part's stub, ``down`` ((M, 3), ``_downhill``) the gradient
     of the image surfaced (the CT with what is not the bone's wiped): where the CT as it was (``original``) is still
     at or above ``level`` INNER_WALL_MM (at least a voxel) down the gradient (the surface only closes off what was
-    wiped), or where nothing reaches the threshold within LOCAL_INSIDE_MM up it (its ``peak``, ``_across_surface``:
-    no cortex under the surface, the stub's sides)."""
+    wiped), or where nothing reaches the threshold within LOCAL_INSIDE_MM up it (no cortex under the surface: the
+    stub's sides)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
     outside = ndimage.map_coordinates(original, (vertices + reach * down / spacing).T, order=1, mode="nearest")
+    peak, _ = _across_surface(original, vertices, down, spacing)
     return (outside >= level) | (peak < threshold)
 
 
@@ -517,43 +515,64 @@ def _on_a_dim_stub(original, vertices, down, peak, level, threshold, spacing):
 #: the level near the top.
 NO_CORTEX_SHARE = 0.85
 #: ... when the level is the half-max of the surface's cortex: its share of the rise is about a half, at most this
-#: (the median over the surface's points).
+#: (the median over up to LOCAL_SAMPLES of the surface's points).
 HALF_WAY_MAX = 0.65
+#: The CT this far (mm) under a surface point, the brighter of the two, is a floor for the peak under it.
+UNDER_MM = (0.5, 1.0)
 
 
 def _across_surface(original, vertices, down, spacing):
     """The CT (``original``, the denoised HU) across the surface at vertices (M, 3) (indices in it), ``down`` ((M, 3),
     ``_downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
     peak) and the median LOCAL_OUTSIDE_MM down it (what the bone touches), (M,) HU each."""
-
-    def at(distance):
-        return partial(
-            ndimage.map_coordinates, original, (vertices + distance * down / spacing).T, order=1, mode="nearest"
-        )
-
-    inside = np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5)
+    inside = -np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5)
     outside = np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.5)
-    values = in_parallel(*[at(-distance) for distance in inside], *[at(distance) for distance in outside])
+    values = _along_gradient(original, vertices, down, spacing, [*inside, *outside])
     return np.max(values[: len(inside)], axis=0), np.median(values[len(inside) :], axis=0)
 
 
-def _without_cortex(peak, beyond, level):
-    """(M,) booleans: surface points with no cortex under them, given the ``peak`` under each and what lies
-    ``beyond`` it (``_across_surface``): the surface ``level`` (HU) above NO_CORTEX_SHARE of the rise from one to
-    the other. That is a part about as bright as the level joined to the bone: family seed 19027, a 271 HU bracket
-    resting on a fibula at a 251 HU level, 1,287 IPC points on it 1 mm inside the bracket; 19077, a 202 HU bracket's
-    stub on a flat bone in air at 63 HU, 103 points. Where the bone touches something brighter than the level (its
-    neighbour across a narrow gap) there is no rise to measure, and the point is kept. None when the level is not
-    the half-max of the surface's own cortex (the share's median over the points crossing a cortex above
-    HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it: family seeds
-    13023, 17021) lies near the top of every point's rise, and the surface is taken again at the level read across
-    it (``_local_half_max``)."""
+def _along_gradient(original, vertices, down, spacing, distances):
+    """(D, M): the CT (``original``) at ``distances`` (mm; negative: up the gradient, into the bone) from vertices
+    (M, 3) along ``down`` ((M, 3))."""
+    steps = [
+        partial(ndimage.map_coordinates, original, (vertices + t * down / spacing).T, order=1, mode="nearest")
+        for t in distances
+    ]
+    return np.array(in_parallel(*steps))
+
+
+def _without_cortex(original, vertices, down, level, spacing):
+    """(M,) booleans: surface points (vertices (M, 3), ``down`` (M, 3) the way out of the bone) with no cortex under
+    them in the CT (``original``): the surface ``level`` (HU) above NO_CORTEX_SHARE of the rise from what lies
+    beyond the point to the peak under it (``_across_surface``). That is a part about as bright as the level joined to
+    the bone: family seed 19027, a 271 HU bracket resting on a fibula at a 251 HU level, 1,287 IPC points on it 1 mm
+    inside the bracket; 19077, a 202 HU bracket's stub on a flat bone in air at 63 HU, 103 points. Where the bone
+    touches something brighter than the level (its neighbour across a narrow gap) there is no rise to measure, and the
+    point is kept.
+
+    None when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
+    a cortex above HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it:
+    family seeds 13023, 17021) lies near the top of every point's rise, and the surface is taken again at the level
+    read across it (``_local_half_max``). The whole profile is read only where the CT UNDER_MM under the point is no
+    brighter than the peak of a point without a cortex can be, whatever lies beyond it (the CT's lowest value at
+    worst): a cortex under the point rules it out."""
+    dim = np.zeros(len(vertices), dtype=bool)
+    if len(vertices) == 0:
+        return dim
+    every = slice(None, None, max(1, len(vertices) // LOCAL_SAMPLES))
+    peak, beyond = _across_surface(original, vertices[every], down[every], spacing)
     rise = peak - beyond
-    share = (level - beyond) / np.maximum(rise, 1e-6)
     crossing = rise >= CORTEX_CONTRAST_HU
-    if not crossing.any() or np.median(share[crossing]) > HALF_WAY_MAX:
-        return np.zeros(len(peak), dtype=bool)
-    return (level > beyond) & (share > NO_CORTEX_SHARE)
+    if not crossing.any() or np.median((level - beyond[crossing]) / rise[crossing]) > HALF_WAY_MAX:
+        return dim
+    lowest = float(original.min())
+    highest_peak = level + (1.0 / NO_CORTEX_SHARE - 1.0) * (level - lowest)
+    under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
+    maybe = np.nonzero(under <= highest_peak)[0]
+    if len(maybe):
+        peak, beyond = _across_surface(original, vertices[maybe], down[maybe], spacing)
+        dim[maybe] = (level > beyond) & (level - beyond > NO_CORTEX_SHARE * (peak - beyond))
+    return dim
 
 
 #: The half-max read across the surface: the cortex's peak within this far (mm) inside each sampled surface point,
