@@ -293,6 +293,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
     half_max = level == "half-max"
+    # A level read as a half-max or given (not the threshold), on voxels that resolve the cortex: a cortex's edge.
+    resolved = level != "threshold" and volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
     # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
     # bone's inside may hold, nor clutter too small to be anything).
@@ -366,8 +368,12 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     down = _downhill(image, vertices_ijk, volume.spacing)
     original = segmentation.smoothed[box]  # the CT as it was, denoised
     # A part about as bright as the surface level, joined to the bone (a dim bracket resting on it), has a surface
-    # at that level too, with no cortex under it.
-    dim = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
+    # at that level too, with no cortex under it. Only at a cortex's edge: at the threshold, and on voxels that blur
+    # the cortex away, dim cancellous bone has no cortex under its surface either (a pelvis at 3 mm: 5,252 of its
+    # 57,000 points).
+    dim = np.zeros(len(vertices_ijk), dtype=bool)
+    if resolved:
+        dim = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
     if level < segmentation.threshold_hu:
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
