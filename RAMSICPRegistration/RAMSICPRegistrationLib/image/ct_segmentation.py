@@ -369,8 +369,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     original = segmentation.smoothed[box]  # the CT as it was, denoised
     # A part about as bright as the surface level, joined to the bone (a dim bracket resting on it), has a surface
     # at that level too, with no cortex under it. Only at a cortex's edge: at the threshold, and on voxels that blur
-    # the cortex away, dim cancellous bone has no cortex under its surface either (a pelvis at 3 mm: 5,252 of its
-    # 57,000 points).
+    # the cortex away, dim cancellous bone has no cortex under its surface either (a pelvis at 3 mm: 4,839 of its
+    # 49,493 IPC points).
     dim = np.zeros(len(vertices_ijk), dtype=bool)
     if resolved:
         dim = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
@@ -597,18 +597,10 @@ def _local_half_max(image, vertices, spacing):
     fewer than 100 of them cross a cortex (a rise of CORTEX_CONTRAST_HU)."""
     points = vertices[:: max(1, len(vertices) // LOCAL_SAMPLES)]
     out = _downhill(image, points, spacing)
-
-    def along(distances):
-        return np.stack(
-            [
-                ndimage.map_coordinates(image, (points + t * out / spacing).T, order=1, mode="nearest")
-                for t in distances
-            ],
-            axis=1,
-        )
-
-    peak = along(np.arange(-LOCAL_INSIDE_MM, 1e-6, 0.25)).max(axis=1)
-    beyond = np.median(along(np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.25)), axis=1)
+    inside = np.arange(-LOCAL_INSIDE_MM, 1e-6, 0.25)
+    outside = np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.25)
+    peak = _along_gradient(image, points, out, spacing, inside).max(axis=0)
+    beyond = np.median(_along_gradient(image, points, out, spacing, outside), axis=0)
     crossing = (peak - beyond >= CORTEX_CONTRAST_HU) & (beyond > BELOW_AIR_HU)
     if crossing.sum() < 100:
         return None
