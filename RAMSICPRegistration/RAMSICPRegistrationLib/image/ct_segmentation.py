@@ -293,8 +293,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
     half_max = level == "half-max"
-    # A level read as a half-max or given (not the threshold), on voxels that resolve the cortex: a cortex's edge.
-    resolved = level != "threshold" and volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6
+    fine = volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6  # voxels that resolve the cortex
+    # A level read as a half-max or given (not the threshold), on such voxels: a cortex's edge.
+    resolved = level != "threshold" and fine
     level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
     # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
     # bone's inside may hold, nor clutter too small to be anything).
@@ -336,7 +337,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # Only inside the bone (enclosed by it along the grid's lines) or at its edge: a dim bracket fixed into a bone
         # in air is above a surface level that low too, and it is no bone.
         near = dilate(mask, iterations=2)
-        if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+        if fine:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
     wire = wires_on_bone(mask, volume.spacing, own=bone[box])  # a wire joined to the bone: another object
@@ -388,7 +389,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # the grid's lines, or in its envelope with such holes plugged (with voxels that resolve the cortex:
         # coarser ones merge bones a few mm apart).
         bone_and_inside = mask
-        if volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+        if fine:
             on_edge = _on_ct_edge(segmentation, low, high, volume)
             bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
             open_sides = _open_sides(segmentation.origin + low, segmentation.origin + high, volume)
@@ -428,7 +429,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             "all of the bone's surface found lies next to the reference body joined to it (its bracket); no IPC can "
             "be taken from this CT: check that the bone is in the field of view"
         )
-    if half_max and volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6:
+    if half_max and fine:
         local = _local_half_max(segmentation.smoothed[box], vertices_ijk, volume.spacing)
         if local is not None and abs(local - level) > LEVEL_TOLERANCE_HU:
             # The level read off the whole bone's rim and band is off where the surface is (a thin layer of soft
