@@ -415,6 +415,19 @@ def test_a_cavity_beside_a_bracket_is_no_marrow_of_it():
     assert score.ipc_on_body == 0 and score.ipc_on_bone >= 0.98 * score.ipc_points
 
 
+def test_dim_parts_led_on_into_the_bone_do_not_leave_it_without_a_cortex():
+    """Family seed 24095 (first met in a fresh batch): a reference body below the threshold (spheres 162 HU, frame
+    and a 10.7 mm bracket 145 HU) resting on a tibia under 70 HU of correlated noise. The dim parts led the spheres
+    on to the bone's object (the bracket's specks above the threshold touch it), which was then the body's: no object
+    had a cortex, a 1.7 cm^3 piece of the frame was taken for the bone, and the CT was refused though 25.8 cm^3 of
+    bone lay in view. With the spheres and their posts' feet alone the tibia has its cortex (+352 HU): taken then."""
+    volume, truth = make_family_ct(24095, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.found == score.visible == 3
+    assert score.ipc_on_body == 0 and score.ipc_on_bone >= 0.99 * score.ipc_points
+    assert score.coverage >= 0.9  # 95.1 % measured
+
+
 def test_a_cap_seen_through_the_hole_of_a_plate_does_not_pull_its_sphere_off_centre():
     """Family seed 19038 (full profile, first met in a fresh batch): four spheres of 1,775 HU sunk into a 618 HU plate
     (the generator calls them hidden). Each is seen below the plate and through its hole, a cap whose edge the plate's

@@ -122,13 +122,14 @@ class ObjectVerdict:
 class BoneRecognition:
     """The bone's ``label``; ``body``: booleans over the segmentation's box of the reference body's voxels in the
     bone's object (None when the body is apart), with ``body_margin_mm``; ``objects``: an ObjectVerdict each;
-    ``warnings``."""
+    ``warnings``; ``has_cortex``: False when no object had a cortex and the bone was taken without one."""
 
     label: int
     body: np.ndarray
     body_margin_mm: float
     objects: tuple
     warnings: tuple = ()
+    has_cortex: bool = True
 
 
 def recognise_bone(volume, segmentation, spheres):
@@ -153,11 +154,18 @@ def recognise_bone(volume, segmentation, spheres):
     try:
         linked = _body_seeds(volume, segmentation, spheres, census)
         reached = {label for label, held in linked.items() if held and not plain[label]}  # by the dim parts only
-        return _recognise(volume, segmentation, linked, census, reached)
+        recognition = _recognise(volume, segmentation, linked, census, reached)
     except ValueError:
         # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
         # with the spheres and their posts' feet alone.
         return _recognise(volume, segmentation, plain, census)
+    if recognition.has_cortex:
+        return recognition
+    # Led on to the bone, the dim parts may leave no object with a cortex but a piece of the body (24095: a 145 HU
+    # bracket resting on a tibia under 70 HU of noise, its specks above the threshold joined to the bone): the
+    # spheres and their posts' feet alone may tell the bone, with its cortex.
+    alone = _recognise(volume, segmentation, plain, census)
+    return alone if alone.has_cortex else recognition
 
 
 @dataclass(frozen=True)
@@ -240,7 +248,7 @@ def _recognise(volume, segmentation, held, census, reached=()):
     with_cortex = [entry for entry in found if entry[0].verdict == "bone"]
     round_marrow = [entry for entry in with_cortex if not entry[0].air_inside]
     with_cortex = round_marrow or with_cortex  # a rim round air is bone only when no rim round marrow is found
-    warnings = []
+    warnings, has_cortex = [], bool(with_cortex)
     if not with_cortex:
         if not found:
             raise ValueError(_nothing_like_bone(verdicts, segmentation.threshold_hu))
@@ -252,7 +260,7 @@ def _recognise(volume, segmentation, held, census, reached=()):
     verdict, cut, shape = max(with_cortex, key=lambda entry: entry[0].volume_mm3)
     body, margin = (None, 0.0) if cut is None else (shape.body_in_box(cut), cut.margin_mm)
     logger.info("bone: object %d (%s)", verdict.label, verdict.describe())
-    return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings))
+    return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings), has_cortex)
 
 
 def _body_seeds(volume, segmentation, spheres, census, dim_links=True):
