@@ -164,7 +164,10 @@ def recognise_bone(volume, segmentation, spheres):
     # Led on to the bone, the dim parts may leave no object with a cortex but a piece of the body (24095: a 145 HU
     # bracket resting on a tibia under 70 HU of noise, its specks above the threshold joined to the bone): the
     # spheres and their posts' feet alone may tell the bone, with its cortex.
-    alone = _recognise(volume, segmentation, plain, census)
+    try:
+        alone = _recognise(volume, segmentation, plain, census)
+    except ValueError:  # nothing plausibly bone that way: the first recognition, with its warning
+        return recognition
     return alone if alone.has_cortex else recognition
 
 
