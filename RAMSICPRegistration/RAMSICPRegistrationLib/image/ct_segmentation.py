@@ -512,7 +512,7 @@ def _on_a_dim_stub(original, vertices, down, level, threshold, spacing):
     stub's sides)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
     outside = ndimage.map_coordinates(original, (vertices + reach * down / spacing).T, order=1, mode="nearest")
-    peak, _ = _across_surface(original, vertices, down, spacing)
+    peak = _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
     return (outside >= level) | (peak < threshold)
 
 
@@ -532,10 +532,10 @@ def _across_surface(original, vertices, down, spacing):
     """The CT (``original``, the denoised HU) across the surface at vertices (M, 3) (indices in it), ``down`` ((M, 3),
     ``_downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
     peak) and the median LOCAL_OUTSIDE_MM down it (what the bone touches), (M,) HU each."""
-    inside = -np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5)
     outside = np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.5)
-    values = _along_gradient(original, vertices, down, spacing, [*inside, *outside])
-    return np.max(values[: len(inside)], axis=0), np.median(values[len(inside) :], axis=0)
+    values = _along_gradient(original, vertices, down, spacing, [*_UP_TO_THE_PEAK_MM, *outside])
+    inside = len(_UP_TO_THE_PEAK_MM)
+    return np.max(values[:inside], axis=0), np.median(values[inside:], axis=0)
 
 
 def _along_gradient(original, vertices, down, spacing, distances):
@@ -587,6 +587,8 @@ def _without_cortex(original, vertices, down, level, spacing):
 LOCAL_INSIDE_MM = 2.5
 LOCAL_OUTSIDE_MM = (1.0, 2.0)
 LOCAL_SAMPLES = 4000
+#: Where the cortex's peak under a surface point is looked for (mm along the gradient; negative: into the bone).
+_UP_TO_THE_PEAK_MM = tuple(-np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5))
 #: ... and the IPC is taken again at that level when it is this far (HU) from the one read round the bone.
 LEVEL_TOLERANCE_HU = 40.0
 
