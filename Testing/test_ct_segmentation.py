@@ -291,3 +291,44 @@ def test_line_enclosure_matches_its_definition_on_random_masks(seed):
             _enclosed_along_lines(mask, on_edge, spacing, padding),
             enclosed_by_walking_the_lines(mask, on_edge, spacing, padding),
         )
+
+
+def _sheets_with_a_wall(n_i, n_j):
+    """A sheet of 1 mm squares (i < n_i, j < n_j; two triangles each) and a second one 0.5 mm above it that no edge
+    joins to it: vertices (M, 3), triangles, and booleans for the first sheet."""
+    i, j = np.meshgrid(np.arange(n_i), np.arange(n_j), indexing="ij")
+    sheet = np.column_stack([i.ravel(), j.ravel(), np.zeros(i.size)]).astype(float)
+    corner = (i[:-1, :-1] * n_j + j[:-1, :-1]).ravel()
+    first_half = np.column_stack([corner, corner + n_j, corner + n_j + 1])
+    triangles = np.concatenate([first_half, np.column_stack([corner, corner + n_j + 1, corner + 1])])
+    vertices = np.concatenate([sheet, sheet + [0.0, 0.0, 0.5]])
+    return vertices, np.concatenate([triangles, triangles + i.size]), np.arange(2 * i.size) < i.size
+
+
+def test_a_holes_mouth_is_the_surface_near_its_wall_along_the_mesh_that_faces_as_the_wall_does():
+    # On the first sheet (21 x 21 vertices) the vertices i <= 5 are an inner wall (126 mm^2), and i, j = 15..16 a speck
+    # (4 mm^2: no hole's wall). Down the gradient the vertices face +k up to i = 7 and +i from i = 8 (the rim, turning
+    # to the bone's outer surface). The mouth: i = 6 and 7 (1 and 2 mm along the edges; i = 8 is 3 mm away but faces
+    # the other way: a third of the surface near the wall), every j: 42 mm^2. Nothing of the second sheet.
+    from RAMSICPRegistrationLib.image.ct_segmentation import MAX_MOUTH_MM2, MIN_WALL_MM2, MOUTH_MM, RIM_SHARE, _mouths
+
+    assert MOUTH_MM == 3.0 and 4.0 < MIN_WALL_MM2 < 126.0 and 42.0 < MAX_MOUTH_MM2 < 138.0 and RIM_SHARE < 1.0 / 3.0
+    vertices, triangles, first = _sheets_with_a_wall(21, 21)
+    at_i, at_j = vertices[:, 0], vertices[:, 1]
+    inner = first & ((at_i <= 5) | ((at_i >= 15) & (at_i <= 16) & (at_j >= 15) & (at_j <= 16)))
+
+    def facing_up_to(last_i):
+        return np.where((at_i <= last_i)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+
+    mouth = _mouths(vertices, triangles, inner, facing_up_to(7), np.ones(3))
+    np.testing.assert_array_equal(mouth, first & (at_i >= 6) & (at_i <= 7))
+    # The edges are measured in mm: with voxels 1.5 mm along i, i = 6 lies 1.5 mm from the wall, i = 7 (the rim now)
+    # 3 mm.
+    mouth = _mouths(vertices, triangles, inner, facing_up_to(6), np.array([1.5, 1.0, 1.0]))
+    np.testing.assert_array_equal(mouth, first & (at_i == 6))
+    # With no rim (all the surface near the wall faces as it does), the wall is a patch of the outer surface.
+    assert not _mouths(vertices, triangles, inner, facing_up_to(20), np.ones(3)).any()
+    # A wall 69 mm long has a mouth (i = 6, 7) of 138 mm^2, larger than the ring round any bracket: no hole's.
+    vertices, triangles, first = _sheets_with_a_wall(21, 70)
+    at_i = vertices[:, 0]
+    assert not _mouths(vertices, triangles, first & (at_i <= 5), facing_up_to(7), np.ones(3)).any()

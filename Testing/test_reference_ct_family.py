@@ -415,6 +415,19 @@ def test_a_cavity_beside_a_bracket_is_no_marrow_of_it():
     assert score.ipc_on_body == 0 and score.ipc_on_bone >= 0.98 * score.ipc_points
 
 
+@pytest.mark.parametrize("seed", [13011, 19085])
+def test_the_mouth_of_a_dim_brackets_hole_is_left_out_with_its_walls(seed):
+    """Family seeds 13011 and 19085: a 10.7 and a 9.5 mm bracket of 156 and 138 HU inserted into a long bone. The
+    envelope plugs the hole the bracket makes in the cortex only up to 1-2.5 mm under the bone's surface (its
+    closing cannot reach further into a hole narrower than it): the wall above the plug, 95 and 102 IPC points on the
+    bracket 0.5-2.4 mm inside the bone, stayed in the IPC. All of them lie within 2.3 mm of the inner wall left out,
+    along the surface: the mouth (``MOUTH_MM``) goes with it now: 0 and 1 points on the body measured."""
+    volume, truth = make_family_ct(seed, "full")
+    _, score = run(volume, truth)
+    assert not score.refused
+    assert score.ipc_on_body <= 2 and score.ipc_on_bone >= 0.99 * score.ipc_points
+
+
 def test_dim_parts_led_on_into_the_bone_do_not_leave_it_without_a_cortex():
     """Family seed 24095 (first met in a fresh batch): a reference body below the threshold (spheres 162 HU, frame
     and a 10.7 mm bracket 145 HU) resting on a tibia under 70 HU of correlated noise. The dim parts led the spheres

@@ -17,11 +17,12 @@ from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
-from .bracket_stub import bracket_line_beyond, bracket_stub
+from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -397,6 +398,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             if envelope is not None:
                 bone_and_inside |= envelope
         inner = _facing_inward(vertices_ijk, down, bone_and_inside, volume.spacing)
+        if inner.any() and fine:
+            # The wall of a hole in the cortex (a dim bracket's) goes on up to the bone's outer surface, where the
+            # envelope does not plug it: its mouth (the surface near the wall along the mesh, facing as it does) goes
+            # too. (On coarser voxels no envelope is made, and a hole's mouth is not resolved.)
+            inner |= _mouths(vertices_ijk, triangles, inner, down, volume.spacing)
         if inner.any():
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
             logger.info("%d IPC points on inner walls left out", int(inner.sum()))
@@ -492,6 +498,84 @@ def _near_padding(padding, vertices, spacing):
 #: A surface point whose outside this far (mm, and at least a voxel) down the gradient is still the bone's is an
 #: inner wall.
 INNER_WALL_MM = 1.5
+
+
+#: The mouth of a hole in the cortex: the surface within this far (mm, along it) of an inner wall. The envelope's
+#: closing plugs a hole up to 1-2.5 mm under the bone's outer surface (its cube cannot reach further into a hole
+#: narrower than it), and the hole's wall above that stays in the IPC: family seeds 13011, 19085, 17065, 20030, 14026
+#: (dim brackets of 120-160 HU, 6-11 mm wide, inserted into the bone): 30-102 IPC points each, 0.5-2.4 mm inside the
+#: bone, all within 2.3 mm of the inner wall along the surface.
+MOUTH_MM = 3.0
+#: ... of an inner wall at least this large (mm^2, the piece of it the mesh joins): a hole's wall round a bracket
+#: 4-12 mm wide is larger; specks of the outer surface taken for inner walls (in a notch the envelope fills: up to
+#: 1,348 pieces of 1-78 vertices in family seeds 17094 and 18063) are not, and a mouth round each took 69-85 % of
+#: their IPC.
+MIN_WALL_MM2 = 20.0
+#: ... that faces the way the wall does (the cosine of the angle between their directions down the gradient at least
+#: this): the hole's wall up to its rim, not the bone's outer surface round it, nor the outside of a cortex whose
+#: inside is the wall (family seed 17021: its whole IPC taken with the marrow's wall).
+MOUTH_FACING = 0.5
+#: ... and the mouth of one wall is at most this large (mm^2): the ring round the widest bracket (MAX_RADIUS_MM) up to
+#: MOUTH_MM from its hole's wall. The holes of 6-11 mm brackets in the family CTs above: 21-59 mm^2. A wall with more
+#: surface round it facing as it does is no hole's (family seed 17021: 740 mm^2 round 5,455 mm^2 of dark streaks in
+#: a tibia's cortex next to a metal bracket, the bone's whole IPC; seeds 13045, 18030: 230-591 mm^2, no bracket).
+MAX_MOUTH_MM2 = 2.0 * np.pi * MAX_RADIUS_MM * MOUTH_MM
+#: ... and at least this share of the surface within MOUTH_MM of the wall faces away from it (its rim, turning to the
+#: bone's outer surface): family CTs with dim brackets' holes 24-90 % (13011: 60 %, 19085: 62 %). Where all of it
+#: faces as the wall does (0-7 % away), the wall is a patch of the outer surface taken for an inner wall (its corner
+#: with a dim rod resting on a tube: 60 mm^2 round 25 mm^2; family seeds 14097, 17032, 16096: 53-79 mm^2 each).
+RIM_SHARE = 0.2
+
+
+def _mouths(vertices, triangles, inner, down, spacing):
+    """(M,) booleans: the mouths of the holes whose walls are the ``inner`` vertices (M,) booleans of a mesh
+    ((M, 3) vertex indices, (T, 3) triangles, ``down`` (M, 3) unit vectors down the gradient, ``spacing`` (3,) mm):
+    the vertices within MOUTH_MM along the mesh's edges of an inner wall of at least MIN_WALL_MM2 that face within
+    MOUTH_FACING of the wall's vertex nearest to them. Another sheet of the surface (not joined to the wall through
+    the mesh) is not reached."""
+    count = len(vertices)
+    # Each triangle's edges as they go round it: in a mesh oriented throughout, each edge once each way, so that the
+    # graph taken both ways holds its length (a sparse matrix would sum an edge given twice the same way).
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    # The inner walls' pieces and their areas (a third of each triangle's to each of its vertices).
+    both = inner[edges[:, 0]] & inner[edges[:, 1]]
+    joined = sparse.coo_matrix((np.ones(both.sum()), (edges[both, 0], edges[both, 1])), shape=(count, count))
+    _, piece = csgraph.connected_components(joined, directed=False)
+    corners = vertices[triangles] * spacing
+    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    vertex_area = np.bincount(triangles.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=count)
+    piece_area = np.bincount(piece[inner], weights=vertex_area[inner], minlength=piece.max() + 1)
+    walls = inner & (piece_area[piece] >= MIN_WALL_MM2)
+    # Measured from the walls' edge: their vertices next to a vertex that is no inner wall.
+    leaving = np.unique(np.concatenate([edges[walls[edges[:, k]] & ~inner[edges[:, 1 - k]], k] for k in (0, 1)]))
+    if len(leaving) == 0:
+        return np.zeros(count, dtype=bool)
+    # Along the mesh is no shorter than straight: only the vertices within MOUTH_MM of the edge can be reached (and
+    # a way through a wall leaves it again at its edge, no nearer), so the graph is made of them alone.
+    others = np.flatnonzero(~walls)
+    reach = MOUTH_MM + 1e-6  # the tree's bound is strict, the graph's limit is not
+    straight, _ = cKDTree(vertices[leaving] * spacing).query(vertices[others] * spacing, distance_upper_bound=reach)
+    band = np.zeros(count, dtype=bool)
+    band[others[np.isfinite(straight)]] = True
+    band[leaving] = True
+    edges = edges[band[edges[:, 0]] & band[edges[:, 1]]]
+    lengths = np.linalg.norm((vertices[edges[:, 0]] - vertices[edges[:, 1]]) * spacing, axis=1)
+    graph = sparse.coo_matrix((lengths, (edges[:, 0], edges[:, 1])), shape=(count, count)).tocsr()
+    distance, _, nearest = csgraph.dijkstra(
+        graph, directed=False, indices=leaving, min_only=True, limit=MOUTH_MM, return_predecessors=True
+    )
+    near = np.flatnonzero(np.isfinite(distance) & ~inner)
+    wall = piece[nearest[near]]
+    facing = np.sum(down[near] * down[nearest[near]], axis=1) >= MOUTH_FACING
+    # Per wall: the surface near it, and its part facing as the wall does. A hole's mouth is a ring round a bracket
+    # (a wall with a larger one is no hole's), and its rim turns away to the bone's outer surface (a wall the surface
+    # round it all faces as it does is a patch of that surface).
+    near_area = np.bincount(wall, weights=vertex_area[near], minlength=len(piece_area))
+    mouth_area = np.bincount(wall[facing], weights=vertex_area[near[facing]], minlength=len(piece_area))
+    hole = (mouth_area <= MAX_MOUTH_MM2) & (mouth_area <= (1.0 - RIM_SHARE) * near_area)
+    mouth = np.zeros(count, dtype=bool)
+    mouth[near[facing & hole[wall]]] = True
+    return mouth
 
 
 def _facing_inward(vertices, down, mask, spacing):
