@@ -512,8 +512,8 @@ MOUTH_MM = 3.0
 #: their IPC.
 MIN_WALL_MM2 = 20.0
 #: ... that faces the way the wall does (the cosine of the angle between their directions down the gradient at least
-#: this): the hole's wall up to its rim, not the bone's outer surface round it, nor the outside of a cortex whose
-#: inside is the wall (family seed 17021: its whole IPC taken with the marrow's wall).
+#: this): the hole's wall up to its rim, not the bone's outer surface round it (13011: 61 IPC points on the bone
+#: round the mouth left out with it, 306 without this rule).
 MOUTH_FACING = 0.5
 #: ... and the mouth of one wall is at most this large (mm^2): the ring round the widest bracket (MAX_RADIUS_MM) up to
 #: MOUTH_MM from its hole's wall. The holes of 6-11 mm brackets in the family CTs above: 21-59 mm^2. A wall with more
@@ -521,8 +521,8 @@ MOUTH_FACING = 0.5
 #: a tibia's cortex next to a metal bracket, the bone's whole IPC; seeds 13045, 18030: 230-591 mm^2, no bracket).
 MAX_MOUTH_MM2 = 2.0 * np.pi * MAX_RADIUS_MM * MOUTH_MM
 #: ... and at least this share of the surface within MOUTH_MM of the wall faces away from it (its rim, turning to the
-#: bone's outer surface): family CTs with dim brackets' holes 24-90 % (13011: 60 %, 19085: 62 %). Where all of it
-#: faces as the wall does (0-7 % away), the wall is a patch of the outer surface taken for an inner wall (its corner
+#: bone's outer surface): family CTs with dim brackets' holes 24-84 % (13011: 60 %, 19085: 62 %). Where all of it
+#: faces as the wall does (0-6 % away), the wall is a patch of the outer surface taken for an inner wall (its corner
 #: with a dim rod resting on a tube: 60 mm^2 round 25 mm^2; family seeds 14097, 17032, 16096: 53-79 mm^2 each).
 RIM_SHARE = 0.2
 
@@ -531,8 +531,9 @@ def _mouths(vertices, triangles, inner, down, spacing):
     """(M,) booleans: the mouths of the holes whose walls are the ``inner`` vertices (M,) booleans of a mesh
     ((M, 3) vertex indices, (T, 3) triangles, ``down`` (M, 3) unit vectors down the gradient, ``spacing`` (3,) mm):
     the vertices within MOUTH_MM along the mesh's edges of an inner wall of at least MIN_WALL_MM2 that face within
-    MOUTH_FACING of the wall's vertex nearest to them. Another sheet of the surface (not joined to the wall through
-    the mesh) is not reached."""
+    MOUTH_FACING of the wall's vertex nearest to them, when they are a hole's mouth: at most MAX_MOUTH_MM2, with a
+    rim (RIM_SHARE of the surface near the wall facing away). Another sheet of the surface (not joined to the wall
+    through the mesh) is not reached."""
     count = len(vertices)
     # Each triangle's edges as they go round it: in a mesh oriented throughout, each edge once each way, so that the
     # graph taken both ways holds its length (a sparse matrix would sum an edge given twice the same way).
