@@ -441,6 +441,19 @@ def test_dim_parts_led_on_into_the_bone_do_not_leave_it_without_a_cortex():
     assert score.coverage >= 0.9  # 95.1 % measured
 
 
+def test_a_frame_brighter_than_the_cortex_where_a_dimmer_bracket_meets_it_is_no_piece_of_bone():
+    """Family seed 25023 (full profile, first met in a fresh batch): plastic spheres (138 HU) on dim posts lead to a
+    2,032 HU plate, whose 812 HU bracket rests on a tibia of 1,118 HU; bone and body are one object. The dim parts
+    alone lead to it, so the body's side of the cut must hold no piece of bone; the plate's rim round the junction
+    with the bracket (1,374 HU inside) read as a cortex (+623 HU), and the tibia (42 cm^3 in view) was refused. A
+    piece of the bone holds its marrow, darker than the bone's own rim: the tibia is cut off the body now."""
+    volume, truth = make_family_ct(25023, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.found == score.visible == 4
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.9  # 94.0 % measured
+
+
 def test_a_cap_seen_through_the_hole_of_a_plate_does_not_pull_its_sphere_off_centre():
     """Family seed 19038 (full profile, first met in a fresh batch): four spheres of 1,775 HU sunk into a 618 HU plate
     (the generator calls them hidden). Each is seen below the plate and through its hole, a cap whose edge the plate's
