@@ -542,9 +542,7 @@ def _mouths(vertices, triangles, inner, down, spacing):
     both = inner[edges[:, 0]] & inner[edges[:, 1]]
     joined = sparse.coo_matrix((np.ones(both.sum()), (edges[both, 0], edges[both, 1])), shape=(count, count))
     _, piece = csgraph.connected_components(joined, directed=False)
-    corners = vertices[triangles] * spacing
-    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    vertex_area = np.bincount(triangles.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=count)
+    vertex_area = _vertex_areas(vertices * spacing, triangles)
     piece_area = np.bincount(piece[inner], weights=vertex_area[inner], minlength=piece.max() + 1)
     walls = inner & (piece_area[piece] >= MIN_WALL_MM2)
     # Measured from the walls' edge: their vertices next to a vertex that is no inner wall.
@@ -577,6 +575,20 @@ def _mouths(vertices, triangles, inner, down, spacing):
     mouth = np.zeros(count, dtype=bool)
     mouth[near[facing & hole[wall]]] = True
     return mouth
+
+
+def _vertex_areas(points, triangles):
+    """(M,) mm^2: a third of the area of each triangle ((T, 3) indices) to each of its corners (``points`` (M, 3)
+    mm). The cross product is written out: ``np.cross`` on the mesh's 400,000 triangles took twice as long."""
+    a = points[triangles[:, 1]] - points[triangles[:, 0]]
+    b = points[triangles[:, 2]] - points[triangles[:, 0]]
+    cross = [
+        a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+        a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+        a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+    ]
+    thirds = np.sqrt(cross[0] ** 2 + cross[1] ** 2 + cross[2] ** 2) / 6.0
+    return np.bincount(triangles.ravel(), weights=np.repeat(thirds, 3), minlength=len(points))
 
 
 def _facing_inward(vertices, down, mask, spacing):
