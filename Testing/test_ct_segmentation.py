@@ -101,14 +101,16 @@ def _rod_sdf(start, end, radius):
     return sdf
 
 
-@pytest.mark.parametrize("rod_hu", [280.0, 400.0])
+@pytest.mark.parametrize("rod_hu", [280.0, 400.0, 600.0])
 @pytest.mark.parametrize("along, radius", [((0.0, 0.0, 10.0), 3.0), ((14.0, 0.0, 0.0), 4.0)])
 def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along, radius):
     """A rod of 6 or 8 mm (a plastic bracket) resting along or across a tube of cortex (1500 HU, 8 mm, marrow 5 mm) in
     air, 0.5 mm into it: the threshold (200 HU) joins the two, and the half-max level (about 260 HU) is below the rod,
     so the rod has a surface at that level too, up to 12 mm off the tube: 18-30 % of the IPC before (family seed
     19027: a 271 HU bracket on a fibula, 1,287 IPC points 1 mm inside it). Under it the rod rises above the level by
-    at most 12 % of the level's rise over the air, where the tube's cortex rises as high again (``NO_CORTEX_SHARE``).
+    at most 12 % of the level's rise over the air, where the tube's cortex rises as high again (``NO_CORTEX_SHARE``);
+    a 600 HU rod rises 28 % of it, but only 0.28 of the cortex's rise over the level (``DIM_PEAK_SHARE``: before it,
+    up to 12 mm of the rod was in the IPC).
     The IPC is the tube's surface, and the corner the blur fills where the rod meets it (0.5-2.3 % of the IPC, within
     1.6 mm of the tube); over 99 % of the tube's surface 3 mm or more away from the rod is there as without it."""
     tube = _hollow_cylinder(outer=8.0, inner=5.0)

@@ -380,10 +380,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
         dim |= _on_a_dim_stub(original, vertices_ijk, down, level, segmentation.threshold_hu, volume.spacing)
-    if dim.any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim)
-        down = down[~dim]
-        logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
+    inner = np.zeros(len(vertices_ijk), dtype=bool)
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
         # made in it): its outside, a little way down the gradient, is still the bone's, or enclosed by it along
@@ -401,11 +398,20 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if inner.any() and fine:
             # The wall of a hole in the cortex (a dim bracket's) goes on up to the bone's outer surface, where the
             # envelope does not plug it: its mouth (the surface near the wall along the mesh, facing as it does) goes
-            # too. (On coarser voxels no envelope is made, and a hole's mouth is not resolved.)
-            inner |= _mouths(vertices_ijk, triangles, inner, down, volume.spacing)
-        if inner.any():
-            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, inner)
-            logger.info("%d IPC points on inner walls left out", int(inner.sum()))
+            # too. (On coarser voxels no envelope is made, and a hole's mouth is not resolved.) On the mesh without
+            # the dim part's points, but with the wall's: the wall of a dim bracket's hole may have no cortex under it
+            # either (family seed 14026: without those points the wall left was too small to have a mouth, 21 IPC
+            # points stayed on the bracket, 6 before), and the dim part beside a wall is no mouth (14007: with it,
+            # the mouth was too large to be a hole's, and 23 points on the bracket stayed, 3 before).
+            keep = ~(dim & ~inner)
+            kept, kept_triangles = _without_vertices(vertices_ijk, triangles, ~keep)
+            inner[keep] |= _mouths(kept, kept_triangles, inner[keep], down[keep], volume.spacing)
+    if dim.any():
+        logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
+    if (inner & ~dim).any():
+        logger.info("%d IPC points on inner walls left out", int((inner & ~dim).sum()))
+    if dim.any() or inner.any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim | inner)
     # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
     # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
     in_ct = vertices_ijk + segmentation.origin + low
@@ -621,8 +627,15 @@ NO_CORTEX_SHARE = 0.85
 #: ... when the level is the half-max of the surface's cortex: its share of the rise is about a half, at most this
 #: (the median over up to LOCAL_SAMPLES of the surface's points).
 HALF_WAY_MAX = 0.65
-#: The CT this far (mm) under a surface point, the brighter of the two, is a floor for the peak under it.
+#: The CT this far (mm) under a surface point, the brighter of the two: a floor for the peak under it.
 UNDER_MM = (0.5, 1.0)
+#: ... and where it rises above the level by less than this share of the cortex's rise (the median of the peaks of
+#: the points crossing a cortex), there is no cortex under the point: a part a few hundred HU above a low level
+#: (family seed 25043: a 194 HU bracket resting on a tibia, the level -34 HU, 180 IPC points on it up to 10 mm off
+#: the bone; 22051, 16058, 25047 alike), or the corner a dim bracket makes with the bone, the cortex's peak deeper
+#: under it (17012, 17043: 40-50 points each, 1-2.3 mm off the bone). Over 76 family CTs, 63 of 1.9 million IPC
+#: points on the bone were below 0.3, and 38-86 % of those the rules before left on dim brackets (7 CTs).
+DIM_PEAK_SHARE = 0.3
 
 
 def _across_surface(original, vertices, down, spacing):
@@ -652,7 +665,8 @@ def _without_cortex(original, vertices, down, level, spacing):
     the bone: family seed 19027, a 271 HU bracket resting on a fibula at a 251 HU level, 1,287 IPC points on it 1 mm
     inside the bracket; 19077, a 202 HU bracket's stub on a flat bone in air at 63 HU, 103 points. Where the bone
     touches something brighter than the level (its neighbour across a narrow gap) there is no rise to measure, and the
-    point is kept.
+    point is kept. A point where the CT UNDER_MM under it rises above the level by less than DIM_PEAK_SHARE of the
+    cortex's peak (the median of the points crossing one) has no cortex under it either, whatever lies beyond.
 
     None when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
     a cortex above HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it:
@@ -669,10 +683,11 @@ def _without_cortex(original, vertices, down, level, spacing):
     crossing = rise >= CORTEX_CONTRAST_HU
     if not crossing.any() or np.median((level - beyond[crossing]) / rise[crossing]) > HALF_WAY_MAX:
         return dim
+    under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
+    dim = under < level + DIM_PEAK_SHARE * (float(np.median(peak[crossing])) - level)
     lowest = float(original.min())
     highest_peak = level + (1.0 / NO_CORTEX_SHARE - 1.0) * (level - lowest)
-    under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
-    maybe = np.nonzero(under <= highest_peak)[0]
+    maybe = np.nonzero((under <= highest_peak) & ~dim)[0]
     if len(maybe):
         peak, beyond = _across_surface(original, vertices[maybe], down[maybe], spacing)
         dim[maybe] = (level > beyond) & (level - beyond > NO_CORTEX_SHARE * (peak - beyond))
