@@ -403,9 +403,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             # either (family seed 14026: without those points the wall left was too small to have a mouth, 21 IPC
             # points stayed on the bracket, 6 before), and the dim part beside a wall is no mouth (14007: with it,
             # the mouth was too large to be a hole's, and 23 points on the bracket stayed, 3 before).
-            keep = ~(dim & ~inner)
-            kept, kept_triangles = _without_vertices(vertices_ijk, triangles, ~keep)
-            inner[keep] |= _mouths(kept, kept_triangles, inner[keep], down[keep], volume.spacing)
+            beside = dim & ~inner
+            kept, kept_triangles = _without_vertices(vertices_ijk, triangles, beside)
+            inner[~beside] |= _mouths(kept, kept_triangles, inner[~beside], down[~beside], volume.spacing)
     if dim.any():
         logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
     if (inner & ~dim).any():
