@@ -458,13 +458,13 @@ def test_a_frame_brighter_than_the_cortex_where_a_dimmer_bracket_meets_it_is_no_
     assert score.coverage >= 0.9  # 94.0 % measured
 
 
-@pytest.mark.parametrize("seed, on_body", [(25043, 80), (22051, 0)])
+@pytest.mark.parametrize("seed, on_body", [(25043, 15), (22051, 0)])
 def test_a_dim_bracket_far_above_a_low_surface_level_adds_no_surface_without_a_cortex(seed, on_body):
     """Family seeds 25043 and 22051: dim brackets of 194 and 174 HU, resting on a long bone and inserted into a flat
     one, in air; the surface level read across the bone is -34 and -16 HU. The bracket lies some 200 HU above the
     level, too far for a part "about as bright as the level" (``NO_CORTEX_SHARE``): 180 and 121 IPC points lay on
-    it, up to 10 mm off the bone. Its peak rises only 0.19-0.34 of the cortex's over the level (``DIM_PEAK_SHARE``):
-    72 and 0 points are left on it (those of 25043 rise 0.30-0.34)."""
+    it, up to 10 mm off the bone. The CT 0.5-1 mm under most of them rises above the level by less than 0.3 of the
+    cortex's rise (``DIM_PEAK_SHARE``; 25043: a median of 0.23): 12 and 0 points are left on the bracket."""
     volume, truth = make_family_ct(seed, "full")
     _, score = run(volume, truth)
     assert not score.refused

@@ -553,7 +553,7 @@ class _ObjectShape:
         cells' means), None when it has no rim or no inside; ``round_the_inside``: only the rim that surrounds the
         inside (within its depth and a cell), as a cortex surrounds its marrow, not that of a brighter part joined to
         a dimmer thick one (a metal frame on a bracket)."""
-        rim = filled & (depth <= max(self.cell.max(), RIM_MM))
+        rim = self._rim(filled, depth)
         if (rim & ~self.at_edge).any():
             rim &= ~self.at_edge
         inside = self._inside(filled, depth)
@@ -562,6 +562,10 @@ class _ObjectShape:
         if not rim.any() or not inside.any():
             return None
         return float(self._rim_hu(rim) - np.median(self.mean_hu[inside]))
+
+    def _rim(self, filled, depth):
+        """The ``filled`` cells within RIM_MM (and a cell) of their surface (``depth``, mm): where a cortex is."""
+        return filled & (depth <= max(self.cell.max(), RIM_MM))
 
     def _rim_hu(self, rim):
         """The brightness (HU) of a rim's cells: the 75th percentile of their maxima."""
@@ -633,9 +637,7 @@ class _ObjectShape:
         if contrast is None or contrast < CORTEX_CONTRAST_HU:
             return False
         inside = np.median(self.mean_hu[self._inside(cells, depth)])
-        return (
-            inside <= self._rim_hu(bone & (self._depth_of(bone) <= max(self.cell.max(), RIM_MM))) - CORTEX_CONTRAST_HU
-        )
+        return inside <= self._rim_hu(self._rim(bone, self._depth_of(bone))) - CORTEX_CONTRAST_HU
 
     def cut_off_body(self, seeds, no_bone_on_body=False):
         """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``

@@ -410,7 +410,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
     if (inner & ~dim).any():
         logger.info("%d IPC points on inner walls left out", int((inner & ~dim).sum()))
-    if dim.any() or inner.any():
+    if (dim | inner).any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim | inner)
     # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
     # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
@@ -629,12 +629,12 @@ NO_CORTEX_SHARE = 0.85
 HALF_WAY_MAX = 0.65
 #: The CT this far (mm) under a surface point, the brighter of the two: a floor for the peak under it.
 UNDER_MM = (0.5, 1.0)
-#: ... and where it rises above the level by less than this share of the cortex's rise (the median of the peaks of
-#: the points crossing a cortex), there is no cortex under the point: a part a few hundred HU above a low level
-#: (family seed 25043: a 194 HU bracket resting on a tibia, the level -34 HU, 180 IPC points on it up to 10 mm off
-#: the bone; 22051, 16058, 25047 alike), or the corner a dim bracket makes with the bone, the cortex's peak deeper
-#: under it (17012, 17043: 40-50 points each, 1-2.3 mm off the bone). Over 76 family CTs, 63 of 1.9 million IPC
-#: points on the bone were below 0.3, and 38-86 % of those the rules before left on dim brackets (7 CTs).
+#: ... and where it rises above the level by less than this share of the cortex's rise above it (the median peak of
+#: the points crossing a cortex, less the level), there is no cortex under the point: a part a few hundred HU above
+#: a low level (family seed 25043: a 194 HU bracket resting on a tibia, the level -34 HU, 180 IPC points on it up to
+#: 10 mm off the bone; 22051, 16058, 25047 alike), or the corner a dim bracket makes with the bone, the cortex's
+#: peak deeper under it (17012, 17043: 40-50 points each, 1-2.3 mm off the bone). Over 76 family CTs, 63 of 1.9
+#: million IPC points on the bone were below 0.3, and 38-86 % of those the rules before left on dim brackets (7 CTs).
 DIM_PEAK_SHARE = 0.3
 
 
@@ -666,7 +666,8 @@ def _without_cortex(original, vertices, down, level, spacing):
     inside the bracket; 19077, a 202 HU bracket's stub on a flat bone in air at 63 HU, 103 points. Where the bone
     touches something brighter than the level (its neighbour across a narrow gap) there is no rise to measure, and the
     point is kept. A point where the CT UNDER_MM under it rises above the level by less than DIM_PEAK_SHARE of the
-    cortex's peak (the median of the points crossing one) has no cortex under it either, whatever lies beyond.
+    cortex's rise above it (the median peak of the points crossing one) has no cortex under it either, whatever lies
+    beyond.
 
     None when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
     a cortex above HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it:
