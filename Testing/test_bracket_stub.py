@@ -182,3 +182,75 @@ def test_a_bracket_ending_on_a_brighter_cortex_or_within_the_bone_keeps_the_line
     bone, body, image = _rod_through_a_slab(rod_from_z=5.0, cortex_hu=1000.0, bottom_z=0.5)
     assert bracket_line(bone, body, SPACING, image).length_mm == LINE_LENGTH_MM
     assert LINE_LENGTH_MM < MAX_LINE_MM
+
+
+def _capsule_rod_through_a_slab(tilt_deg, radius_mm, tip_z):
+    """A rod of ``radius_mm`` (1500 HU) with a round tip, tilted by ``tilt_deg`` from the normal of a flat bone (z
+    10-30 mm: 2 mm cortices of 1000 HU, 300 HU between) in air, from z = 45 mm down through it to its tip at
+    ``tip_z`` (the bottom of its round end). As the cut leaves it, the rod's part below the bone's top is the bone's
+    (its tip out of the far side included), the rest the body's. Returns (bone mask, body mask, CT image, the rod's
+    unit axis pointing down, the tip's bottom point)."""
+    points = _grid((140, 80, 100))
+    tilt = np.radians(tilt_deg)
+    axis = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
+    top = np.array([30.0, 20.0, 45.0])
+    tip_centre = top + axis * (45.0 - tip_z - radius_mm) / np.cos(tilt)
+    offsets = points - top
+    along = offsets @ axis
+    across = np.linalg.norm(offsets - along[..., None] * axis, axis=-1)
+    length = (tip_centre - top) @ axis
+    rod = (across <= radius_mm) & (along >= 0.0) & (along <= length)
+    rod |= np.linalg.norm(points - tip_centre, axis=-1) <= radius_mm
+    z = points[..., 2]
+    slab = (z >= 10.0) & (z <= 30.0)
+    image = np.full(slab.shape, -1000.0)
+    image[slab] = 300.0
+    image[slab & ((z <= 12.0) | (z >= 28.0))] = 1000.0
+    image[rod] = 1500.0
+    bone = slab | (rod & (z < 30.0))
+    return bone, rod & ~bone, image, axis, tip_centre + radius_mm * axis
+
+
+def test_a_bracket_aslant_to_the_bone_is_read_along_its_run_into_it():
+    """A rod of 3 mm tilted 25 degrees from the bone's normal, through it and 2 mm out of its far side. The body's
+    end, cut aslant by the bone's surface, tilts its principal axis 9 degrees towards the normal; with the CT the line
+    joins the end's centroid to that of the rod's run into the bone, within 2 degrees of its axis, and holds the
+    tip's side 2 mm off the rod's axis below the far side (family seed 26033: 6.7 degrees, 48 IPC points on the tip
+    of a 7.9 mm bracket, 5.8-6.2 mm off the line read on its end)."""
+    bone, body, image, axis, tip = _capsule_rod_through_a_slab(tilt_deg=25.0, radius_mm=3.0, tip_z=8.0)
+    line = bracket_line(bone, body, SPACING, image)
+    assert np.degrees(np.arccos(line.direction @ axis)) <= 2.0
+    assert np.degrees(np.arccos(bracket_line(bone, body, SPACING).direction @ axis)) >= 5.0  # the end alone
+    tip_side = tip - axis + np.array([[0.0, 2.0, 0.0], [0.0, -2.0, 0.0], [0.0, 0.0, 0.0]])
+    assert (tip_side[:, 2] < 10.0).all() and line.contains(tip_side).all()
+
+
+def test_a_round_tip_out_of_the_far_side_by_less_than_its_radius_is_on_the_line():
+    """A rod of 3 mm tilted 10 degrees, its round tip 1 mm out of the far side (z = 9 mm): aslant, the ring round the
+    rod lies in the bone on one side up to where its axis leaves the rod's HU, but the axis leaves the bone within
+    TIP_PAST_MM past it; the line runs to the tip and LINE_MARGIN_MM past it (family seed 13086: a 6.5 mm bracket's
+    tip out of a flat bone, 84 IPC points on it 0.5-2 mm past LINE_LENGTH_MM)."""
+    bone, body, image, axis, tip = _capsule_rod_through_a_slab(tilt_deg=10.0, radius_mm=3.0, tip_z=9.0)
+    line = bracket_line(bone, body, SPACING, image)
+    assert np.degrees(np.arccos(line.direction @ axis)) <= 2.0
+    assert line.length_mm > LINE_LENGTH_MM
+    assert line.contains(tip - axis * np.array([[0.2], [0.8]]) + np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]])).all()
+    assert not line.contains((tip + (LINE_MARGIN_MM + 1.0) * axis)[None]).any()
+
+
+def test_a_plate_coming_near_the_bone_beside_the_bracket_leaves_the_brackets_line():
+    """A rod of 3 mm standing on a flat bone (z 10-30 mm) up to a plate 4 mm thick that slopes down from its top to
+    0.5 mm over the bone 55 mm away. Within END_MM of the bone lie the rod's first 8 mm and a strip of the plate
+    larger than them, which tilts the end's axis across the rod (no line before); read from each piece where the
+    body meets the bone, through the body, the rod's end is the rod's alone (family seeds 15093, 19041: 247 and 37
+    IPC points on the tip of a bracket whose plate comes within 9-12 mm of the bone)."""
+    points = _grid((180, 80, 110))
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    bone = (z >= 10.0) & (z <= 30.0)
+    rod = (np.hypot(x - 30.0, y - 20.0) <= 3.0) & (z >= 30.0) & (z <= 50.0)
+    normal = np.array([19.5, 0.0, 55.0]) / np.hypot(19.5, 55.0)
+    height = (points - np.array([30.0, 20.0, 52.0])) @ normal
+    plate = (np.abs(height) <= 2.0) & (x >= 25.0) & (x <= 85.0) & (np.abs(y - 20.0) <= 18.0)
+    body = (rod | plate) & ~bone
+    assert z[plate].min() <= 31.0 and (plate & (z <= 38.0)).sum() > (rod & (z <= 38.0)).sum()
+    _assert_down_the_rod(bracket_line(bone, body, SPACING), radius_mm=3.0, end_z=30.5, atol=0.02)

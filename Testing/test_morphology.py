@@ -6,6 +6,7 @@ import pytest
 from scipy import ndimage
 
 from RAMSICPRegistrationLib.image.morphology import (
+    VoxelGraph,
     all_ahead,
     any_ahead,
     any_behind,
@@ -118,3 +119,21 @@ def test_block_reductions_match_a_loop_over_the_blocks(seed):
         for index in np.ndindex(*mask.shape):
             assert back[index] == expected_any[tuple(np.array(index) // block)]
         assert not (mask & ~back).any()
+
+
+def test_distances_through_a_mask_go_round_a_wall_in_steps_to_the_26_neighbours():
+    """A 20-voxel cube (1 x 1 x 2 mm voxels) split by a wall at i = 10 with a gap at j >= 15: straight along j the
+    distance is the straight one (10 steps of 1 mm); to the other side of the wall it goes round through the gap, 5
+    diagonal and 8 straight steps each way; past the limit, in the wall or with no source, inf."""
+    mask = np.ones((20, 20, 20), dtype=bool)
+    mask[10, :15, :] = False
+    sources = np.zeros_like(mask)
+    sources[5, 2, 10] = True
+    graph = VoxelGraph(mask, [1.0, 1.0, 2.0])
+    distance = graph.distance(sources, limit_mm=40.0)
+    assert distance[5, 2, 10] == 0.0 and distance[5, 12, 10] == pytest.approx(10.0)
+    assert distance[5, 2, 13] == pytest.approx(6.0)  # 3 steps of 2 mm along k
+    assert distance[15, 2, 10] == pytest.approx(2 * (5 * np.sqrt(2.0) + 8.0))
+    assert np.isinf(distance[10, 5, 10])  # in the wall
+    assert np.isinf(graph.distance(sources, limit_mm=5.0)[5, 12, 10])
+    assert np.isinf(graph.distance(np.zeros_like(mask), limit_mm=40.0)).all()

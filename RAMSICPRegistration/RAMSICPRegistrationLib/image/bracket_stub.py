@@ -10,10 +10,12 @@ than the bracket's end (its radius, read off the body's voxels where they meet t
 pieces that touch the body. A bone thinner than the bracket is not taken: such a piece is larger than a stub.
 """
 
+import copy
+
 import numpy as np
 from scipy import ndimage
 
-from .morphology import dilate
+from .morphology import VoxelGraph, dilate
 
 #: The bracket's end is read off the body's voxels within this far (mm) of the bone.
 END_MM = 8.0
@@ -43,6 +45,13 @@ TIP_RING_MM = 0.5
 TIP_FREE_MM = 1.5
 THROUGH_BONE = 0.75
 OUT_OF_BONE = 0.5
+#: ... or the axis leaves the bone within TIP_PAST_MM past the run's end (the tip's blur). A bracket's run into the
+#: bone longer than INSIDE_RUN_MM refits its line along the run too (``_inside_run``).
+TIP_PAST_MM = 2.5
+INSIDE_RUN_MM = 3.0
+REFITS = 3
+#: The line is read from at most this many of the pieces where the body meets the bone, the largest first.
+JUNCTIONS = 3
 #: Going away from the bone, the bracket's depth grows with the distance up to its radius: it has reached it where
 #: it lags the distance by PLATEAU_LAG_MM; a part of its end deeper than that by FRAME_DEEPER_MM is a frame's or a
 #: plate's (mm).
@@ -53,7 +62,7 @@ FRAME_DEEPER_MM = 1.0
 class _BracketEnd:
     """The body's voxels within END_MM of the bone, over a box round where the two meet: ``box`` (3 slices of the
     arrays given), ``bone`` and ``rest`` (the body) cut to it, ``to_bone`` (mm), ``depth`` (the body's, mm),
-    ``end`` (booleans)."""
+    ``end`` (booleans); ``junctions()`` reads it from each piece where the two meet."""
 
     def __init__(self, mask, body, spacing):
         self.end = None
@@ -73,6 +82,26 @@ class _BracketEnd:
         self.depth = ndimage.distance_transform_edt(self.rest, sampling=spacing)
         end = self.rest & (self.to_bone <= END_MM)
         self.end = end if end.any() else None
+        self.joined, self.spacing = joined[self.box], spacing
+
+    def junctions(self):
+        """The bracket's end read from each of the largest JUNCTIONS pieces where the body meets the bone, largest
+        first: views of this end whose ``from_bone`` (mm) is the distance from that piece through the body (inf past
+        3 * MAX_RADIUS_MM), and whose ``end`` holds the body's voxels within END_MM of it (None when none). A frame or
+        plate that comes near the bone beside the bracket meets it in a piece of its own, or is far from the
+        bracket's along it (family seeds 15093, 19041: a plate as thin as the bracket within 9-12 mm of the bone,
+        its axis read across the plate and no line; 247 and 37 IPC points on the bracket's tip out of the bone's
+        far side)."""
+        pieces, _ = ndimage.label(self.joined, structure=np.ones((3, 3, 3), dtype=bool))
+        sizes = np.bincount(pieces.ravel())[1:]
+        reach_mm = max(END_MM, 3.0 * MAX_RADIUS_MM)
+        graph = VoxelGraph(self.rest & (self.to_bone <= reach_mm + 2.0 * self.spacing.max()), self.spacing)
+        for label in np.argsort(sizes, kind="stable")[::-1][:JUNCTIONS] + 1:
+            view = copy.copy(self)
+            view.from_bone = graph.distance(pieces == label, reach_mm)
+            end = self.rest & (view.from_bone <= END_MM)
+            view.end = end if end.any() else None
+            yield view
 
     def radius(self):
         """The bracket's radius (mm): its end's depth, at most MAX_RADIUS_MM. A frame or plate within END_MM of the bone
@@ -181,16 +210,36 @@ def bracket_line_beyond(mask, body, low, spacing, image=None):
 def bracket_line(mask, body, spacing, image=None):
     """The BracketLine of the ``body`` (the body's voxels cut off the bone ``mask``, same box; ``spacing`` (3,) mm)
     in the frame index times spacing of these arrays, or None when the bracket does not meet the bone head-on.
-    With ``image`` (the CT, HU, same box) a bracket that goes through the bone is followed to its tip."""
+    With ``image`` (the CT, HU, same box) the line joins the centroid of the body's end to that of the bracket's run
+    on into the bone (``_inside_run``), and a bracket that goes through the bone is followed to its tip."""
     spacing = np.asarray(spacing, float)
     meeting = _BracketEnd(mask, body, spacing)
+    if meeting.end is None:
+        return None
+    for junction in meeting.junctions():
+        line = _line_from(junction, mask, spacing, image)
+        if line is not None:
+            return line
+    return None
+
+
+def _line_from(meeting, mask, spacing, image):
+    """``bracket_line`` read on one junction's end (a ``_BracketEnd.junctions()`` view), or None."""
     if meeting.end is None or meeting.end.sum() < 10:
         return None
     radius = meeting.radius()
     # A thick bracket's first END_MM are wider than long: its line is read over three of its radii, on the parts no
     # thicker than the bracket (an opening by a ball MARGIN_MM wider takes a frame or plate off).
-    near = meeting.rest & (meeting.to_bone <= max(END_MM, 3.0 * radius))
-    thin = near & ~_opened(meeting.depth, radius + MARGIN_MM, spacing)
+    near = meeting.rest & (meeting.from_bone <= max(END_MM, 3.0 * radius))
+    # Opened over the box round these voxels alone, with room for the ball: the same, at a fraction of the cost where
+    # the body meets the bone over a wide box (a plate near it).
+    where = np.argwhere(near)
+    room = np.ceil((radius + MARGIN_MM) / spacing).astype(int) + 1
+    crop = tuple(
+        slice(max(a - r, 0), min(b + r + 1, n)) for a, b, r, n in zip(where.min(0), where.max(0), room, near.shape)
+    )
+    thin = np.zeros_like(near)
+    thin[crop] = near[crop] & ~_opened(meeting.depth[crop], radius + MARGIN_MM, spacing)
     end = _largest_piece(thin if thin.any() else near)
     positions = (np.argwhere(end) + meeting.low) * spacing
     to_bone = meeting.to_bone[end]
@@ -209,9 +258,54 @@ def bracket_line(mask, body, spacing, image=None):
     if image is not None:
         core = end & (meeting.depth >= 0.5 * meeting.depth[end].max())
         hu = float(np.median(image[meeting.box][core]))
-        start = centre + tip * direction
-        length = _through_length(image, mask, start, direction, hu, radius, spacing)
+        for _ in range(REFITS):  # the bracket goes on into the bone: the line joins the two parts' centroids
+            inside = _inside_run(image, centre + tip * direction, direction, hu, radius, spacing)
+            if len(inside) == 0:
+                break
+            direction = inside.mean(axis=0) - centre
+            direction /= np.linalg.norm(direction)
+            tip = float(((positions - centre) @ direction).max())
+        length = _through_length(image, mask, centre + tip * direction, direction, hu, radius, spacing)
     return BracketLine(centre, direction, radius, tip, length)
+
+
+def _run_end(image, start_mm, direction, hu, spacing):
+    """Where (mm past ``start_mm`` along ``direction``) the image along the axis of a bracket of ``hu`` leaves its
+    band (THROUGH_BAND of its HU, at least THROUGH_BAND_HU) for a millimetre, the axis' samples (mm), and the image
+    there (HU); the end is None when it stays in the band to MAX_LINE_MM."""
+    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+    steps = np.arange(0.0, MAX_LINE_MM + 1e-6, 0.5)
+    axis = start_mm + steps[:, None] * direction
+    values = ndimage.map_coordinates(image, (axis / spacing).T, order=1, mode="nearest")
+    out = np.abs(values - hu) > band
+    leaves = np.nonzero(out[:-1] & out[1:])[0]
+    return (float(steps[leaves[0]]) if len(leaves) else None), steps, values
+
+
+def _inside_run(image, start_mm, direction, hu, radius, spacing):
+    """(M, 3) positions (mm) of the voxels of a bracket's run past the body's end (``start_mm``, along ``direction``;
+    ``_run_end``): within its band of ``hu`` and ``radius`` (mm) of its axis, from the body's end to the run's end.
+    The line read on the body's end alone tilts off where the bone's surface cuts that end aslant, and misses the tip
+    of a bracket that comes out of the far side of the bone by more than LINE_MARGIN_MM (family seed 26033: 6.7
+    degrees, 48 IPC points on the tip 10-15 mm past the body's end, 5.8-6.2 mm off the line). Empty when the run is
+    shorter than INSIDE_RUN_MM."""
+    end, _, _ = _run_end(image, start_mm, direction, hu, spacing)
+    if end is None or end < INSIDE_RUN_MM:
+        return np.zeros((0, 3))
+    stop = start_mm + end * direction
+    reach = radius + 1.0
+    low = np.maximum(np.floor((np.minimum(start_mm, stop) - reach) / spacing).astype(int), 0)
+    high = np.minimum(np.ceil((np.maximum(start_mm, stop) + reach) / spacing).astype(int) + 1, image.shape)
+    if np.any(high <= low):
+        return np.zeros((0, 3))
+    box = tuple(slice(a, b) for a, b in zip(low, high))
+    positions = (np.argwhere(np.ones(high - low, dtype=bool)) + low) * spacing
+    offsets = positions - start_mm
+    along = offsets @ direction
+    across = np.linalg.norm(offsets - along[:, None] * direction, axis=1)
+    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+    keep = (along >= 0.0) & (along <= end) & (across <= radius) & (np.abs(image[box].ravel() - hu) <= band)
+    return positions[keep]
 
 
 def _through_length(image, bone, start_mm, direction, hu, radius, spacing):
@@ -219,20 +313,15 @@ def _through_length(image, bone, start_mm, direction, hu, radius, spacing):
     ``image`` and of the ``bone``'s booleans) along ``direction``, for a bracket of ``hu`` (its end's median) and
     ``radius`` (mm): LINE_LENGTH_MM, or more when the image along the axis stays within its band (THROUGH_BAND of its
     HU, at least THROUGH_BAND_HU) farther and then turns dimmer for a millimetre, having gone through the ``bone``
-    and out of it (THROUGH_BONE, OUT_OF_BONE): its tip, out of the bone's far side (family seeds 16094, 13085,
-    21083: a 6-11 mm bracket of 1300-1600 HU through a bone, 59-148 IPC points on its tip 20-25 mm past the body's
-    end). A run that ends brighter (a cortex brighter than the bracket), inside the bone, or along it without going
-    through it (a line read along a fibula's cortex: family seed 19020, 304 IPC points on the bone lost), or that
-    goes on to MAX_LINE_MM, is not followed."""
-    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
-    steps = np.arange(0.0, MAX_LINE_MM + 1e-6, 0.5)
-    axis = start_mm + steps[:, None] * direction
-    values = ndimage.map_coordinates(image, (axis / spacing).T, order=1, mode="nearest")
-    out = np.abs(values - hu) > band
-    leaves = np.nonzero(out[:-1] & out[1:])[0]  # a millimetre out of the band
-    if len(leaves) == 0 or values[leaves[0]] > hu or steps[leaves[0]] + LINE_MARGIN_MM <= LINE_LENGTH_MM:
+    and out of it (THROUGH_BONE; OUT_OF_BONE or TIP_PAST_MM): its tip, out of the bone's far side (family seeds
+    16094, 13085, 21083: a 6-11 mm bracket of 1300-1600 HU through a bone, 59-148 IPC points on its tip 20-25 mm past
+    the body's end). A run that ends brighter (a cortex brighter than the bracket), inside the bone, or along it
+    without going through it (a line read along a fibula's cortex: family seed 19020, 304 IPC points on the bone
+    lost), or that goes on to MAX_LINE_MM, is not followed."""
+    end, steps, values = _run_end(image, start_mm, direction, hu, spacing)
+    if end is None or values[steps == end][0] > hu or end + LINE_MARGIN_MM <= LINE_LENGTH_MM:
         return LINE_LENGTH_MM
-    end = steps[leaves[0]]
+    axis = start_mm + steps[:, None] * direction
     # The share of a ring TIP_RING_MM round the bracket that lies in the bone, along the run: it goes through the bone
     # (THROUGH_BONE of a ring in it somewhere) and comes out (at most OUT_OF_BONE over its last TIP_FREE_MM).
     across = np.linalg.svd(direction[None, :])[2][1:]  # two unit vectors across the axis
@@ -243,6 +332,13 @@ def _through_length(image, bone, start_mm, direction, hu, radius, spacing):
     in_bone = ndimage.map_coordinates(bone.astype(np.uint8), around.T, order=0, mode="constant")
     share = in_bone.reshape(-1, len(angles)).mean(axis=1)
     tip = steps[run] >= end - TIP_FREE_MM
-    if share.max() < THROUGH_BONE or share[tip].mean() > OUT_OF_BONE:
+    # A round tip that comes out by less than the bracket's radius leaves the ring in the bone to the run's end: the
+    # axis past the run's end leaves the bone instead (family seed 13086: a 6.5 mm bracket out of a flat bone's far
+    # side, 84 IPC points on its tip 0.5-2 mm past LINE_LENGTH_MM).
+    past = axis[(steps >= end) & (steps <= end + TIP_PAST_MM)] / spacing
+    comes_out = (
+        share[tip].mean() <= OUT_OF_BONE or not ndimage.map_coordinates(bone.astype(np.uint8), past.T, order=0).all()
+    )
+    if share.max() < THROUGH_BONE or not comes_out:
         return LINE_LENGTH_MM
     return float(min(end + LINE_MARGIN_MM, MAX_LINE_MM))

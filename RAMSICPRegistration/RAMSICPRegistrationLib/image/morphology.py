@@ -5,10 +5,15 @@ The same results as ``scipy.ndimage.binary_dilation`` / ``binary_erosion`` with 
 ``maximum_filter`` over a cube and as ``uniform_filter`` (a sum over a cube, here without its rounding), and
 windows along one axis, but made of whole-array ``&=``, ``|=``, ``+=`` on views of the volume, which NumPy runs at
 memory speed: 5 to 12 times faster than SciPy's voxel-by-voxel loops on the bone's box of a C-arm CT (6 million
-voxels: 5-10 ms an iteration against 35-115 ms). The image side runs a few dozen of them per CT.
+voxels: 5-10 ms an iteration against 35-115 ms). The image side runs a few dozen of them per CT. And distances
+through a mask (``VoxelGraph``: shortest paths over each voxel's 26 neighbours).
 """
 
+import itertools
+
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 
 
 def dilate(mask, iterations=1, within=None):
@@ -168,3 +173,41 @@ def _ahead(mask, axis, length, combine):
         low, high = _halves(window.shape, axis, rest)
         combine(window[low], window[high], out=window[low])
     return window
+
+
+class VoxelGraph:
+    """The voxels of ``mask`` (I, J, K booleans) joined to their 26 neighbours in it, each step as long as it is
+    (``spacing`` (3,) mm): ``distance`` measures along paths inside the mask, within 8 % of the straight distance."""
+
+    def __init__(self, mask, spacing):
+        self.mask = np.asarray(mask, dtype=bool)
+        spacing = np.asarray(spacing, float)
+        self.index = np.full(self.mask.shape, -1, dtype=np.int64)
+        count = int(self.mask.sum())
+        self.index[self.mask] = np.arange(count)
+        rows, columns, lengths = [], [], []
+        for step in _HALF_NEIGHBOURS:
+            here = tuple(slice(max(-o, 0), n - max(o, 0)) for o, n in zip(step, self.mask.shape))
+            there = tuple(slice(max(o, 0), n - max(-o, 0)) for o, n in zip(step, self.mask.shape))
+            both = self.mask[here] & self.mask[there]
+            rows.append(self.index[here][both])
+            columns.append(self.index[there][both])
+            lengths.append(np.full(int(both.sum()), float(np.linalg.norm(step * spacing))))
+        self.graph = sparse.coo_matrix(
+            (np.concatenate(lengths), (np.concatenate(rows), np.concatenate(columns))), shape=(count, count)
+        ).tocsr()
+
+    def distance(self, sources, limit_mm):
+        """(I, J, K) the distance (mm) from the ``sources`` (booleans) to each voxel of the mask through it, up to
+        ``limit_mm``; inf beyond it and outside the mask."""
+        distance = np.full(self.mask.shape, np.inf)
+        start = self.index[np.asarray(sources, dtype=bool) & self.mask]
+        if len(start):
+            distance[self.mask] = csgraph.dijkstra(
+                self.graph, directed=False, indices=start, min_only=True, limit=limit_mm
+            )
+        return distance
+
+
+#: One of each pair of opposite steps to the 26 neighbours of a voxel (the 13 that come first in order).
+_HALF_NEIGHBOURS = [np.array(step) for step in itertools.product((-1, 0, 1), repeat=3) if step > (0, 0, 0)]
