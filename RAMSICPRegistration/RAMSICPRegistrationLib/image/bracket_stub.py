@@ -45,9 +45,11 @@ TIP_RING_MM = 0.5
 TIP_FREE_MM = 1.5
 THROUGH_BONE = 0.75
 OUT_OF_BONE = 0.5
-#: ... or the axis leaves the bone within TIP_PAST_MM past the run's end (the tip's blur). A bracket's run into the
-#: bone longer than INSIDE_RUN_MM refits its line along the run too (``_inside_run``).
+#: ... or the axis leaves the bone within TIP_PAST_MM past the run's end (a round tip out by less than the bracket's
+#: radius, and its blur).
 TIP_PAST_MM = 2.5
+#: A bracket's run into the bone longer than INSIDE_RUN_MM turns its line, REFITS times, through the centroid of the
+#: run's voxels (``_inside_run``).
 INSIDE_RUN_MM = 3.0
 REFITS = 3
 #: The line is read from at most this many of the pieces where the body meets the bone, the largest first.
@@ -144,14 +146,15 @@ def bracket_stub(mask, body, spacing):
 
 
 class BracketLine:
-    """The line of a bracket that meets the bone head-on, fitted to the body's end (its voxels within END_MM of the
-    bone, or three of the bracket's radii if more; their principal axis): the stub the cut left on the bone lies
-    along it, as far as the bracket reaches into the bone. ``contains(positions_mm)`` tells the IPC points on it:
-    within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to LINE_LENGTH_MM
-    past it (a disc round where the bracket enters the bone goes with them: the ring the bracket hides), or
-    ``length_mm`` past it for a bracket that goes through the bone (``_through_length``). Family seeds 14013,
-    15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined (longer than a stub
-    may be)."""
+    """The line of a bracket that meets the bone head-on, fitted to the body's end (its voxels within END_MM of
+    where it meets the bone, through the body, or three of the bracket's radii if more; their principal axis, turned
+    through the centroid of the bracket's run into the bone where the CT shows one): the stub the cut left on the
+    bone lies along it, as far as the bracket reaches into the bone. ``contains(positions_mm)`` tells the IPC points
+    on it: within the bracket's radius and LINE_MARGIN_MM of the line, from 2 mm before the body's end to
+    LINE_LENGTH_MM past it (a disc round where the bracket enters the bone goes with them: the ring the bracket
+    hides), or ``length_mm`` past it for a bracket that goes through the bone (``_through_length``). Family seeds
+    14013, 15072: 439 and 185 IPC points on stubs 6-17 mm long that a thin bone's own thin parts joined (longer than
+    a stub may be)."""
 
     def __init__(self, point_mm, direction, radius_mm, tip, length_mm=LINE_LENGTH_MM):
         self.point_mm, self.direction, self.radius_mm, self.tip = point_mm, direction, radius_mm, tip
