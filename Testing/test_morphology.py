@@ -12,6 +12,7 @@ from RAMSICPRegistrationLib.image.morphology import (
     any_behind,
     block_any,
     block_max,
+    bounding_box,
     box_max,
     box_sum,
     dilate,
@@ -137,3 +138,14 @@ def test_distances_through_a_mask_go_round_a_wall_in_steps_to_the_26_neighbours(
     assert np.isinf(distance[10, 5, 10])  # in the wall
     assert np.isinf(graph.distance(sources, limit_mm=5.0)[5, 12, 10])
     assert np.isinf(graph.distance(np.zeros_like(mask), limit_mm=40.0)).all()
+
+
+def test_the_bounding_box_is_widened_by_its_pad_per_axis_and_cut_to_the_volume():
+    """Voxels at (3, 5, 7) and (4, 9, 8) in a 10 x 12 x 9 volume: padded by 2 the box runs 1-6, 3-11, 5-9 (cut at the
+    last slice); padded by (0, 1, 3), 3-4, 4-10, 4-9."""
+    mask = np.zeros((10, 12, 9), dtype=bool)
+    mask[3, 5, 7] = mask[4, 9, 8] = True
+    low, high = bounding_box(mask, pad=2)
+    assert low.tolist() == [1, 3, 5] and high.tolist() == [7, 12, 9]
+    low, high = bounding_box(mask, pad=[0, 1, 3])
+    assert low.tolist() == [3, 4, 4] and high.tolist() == [5, 11, 9]

@@ -15,7 +15,7 @@ import copy
 import numpy as np
 from scipy import ndimage
 
-from .morphology import VoxelGraph, dilate
+from .morphology import VoxelGraph, bounding_box, dilate
 
 #: The bracket's end is read off the body's voxels within this far (mm) of the bone.
 END_MM = 8.0
@@ -236,11 +236,8 @@ def _line_from(meeting, mask, spacing, image):
     near = meeting.rest & (meeting.from_bone <= max(END_MM, 3.0 * radius))
     # Opened over the box round these voxels alone, with room for the ball: the same, at a fraction of the cost where
     # the body meets the bone over a wide box (a plate near it).
-    where = np.argwhere(near)
-    room = np.ceil((radius + MARGIN_MM) / spacing).astype(int) + 1
-    crop = tuple(
-        slice(max(a - r, 0), min(b + r + 1, n)) for a, b, r, n in zip(where.min(0), where.max(0), room, near.shape)
-    )
+    low, high = bounding_box(near, pad=np.ceil((radius + MARGIN_MM) / spacing).astype(int) + 1)
+    crop = tuple(slice(a, b) for a, b in zip(low, high))
     thin = np.zeros_like(near)
     thin[crop] = near[crop] & ~_opened(meeting.depth[crop], radius + MARGIN_MM, spacing)
     end = _largest_piece(thin if thin.any() else near)
@@ -272,11 +269,17 @@ def _line_from(meeting, mask, spacing, image):
     return BracketLine(centre, direction, radius, tip, length)
 
 
+def _band(hu):
+    """How far (HU) from a bracket's ``hu`` the image along its axis may stray and still be the bracket: THROUGH_BAND
+    of it, at least THROUGH_BAND_HU."""
+    return max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+
+
 def _run_end(image, start_mm, direction, hu, spacing):
     """Where (mm past ``start_mm`` along ``direction``) the image along the axis of a bracket of ``hu`` leaves its
     band (THROUGH_BAND of its HU, at least THROUGH_BAND_HU) for a millimetre, the axis' samples (mm), and the image
     there (HU); the end is None when it stays in the band to MAX_LINE_MM."""
-    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+    band = _band(hu)
     steps = np.arange(0.0, MAX_LINE_MM + 1e-6, 0.5)
     axis = start_mm + steps[:, None] * direction
     values = ndimage.map_coordinates(image, (axis / spacing).T, order=1, mode="nearest")
@@ -306,7 +309,7 @@ def _inside_run(image, start_mm, direction, hu, radius, spacing):
     offsets = positions - start_mm
     along = offsets @ direction
     across = np.linalg.norm(offsets - along[:, None] * direction, axis=1)
-    band = max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
+    band = _band(hu)
     keep = (along >= 0.0) & (along <= end) & (across <= radius) & (np.abs(image[box].ravel() - hu) <= band)
     return positions[keep]
 
@@ -332,16 +335,15 @@ def _through_length(image, bone, start_mm, direction, hu, radius, spacing):
     ring = (radius + TIP_RING_MM) * (np.cos(angles)[:, None] * across[0] + np.sin(angles)[:, None] * across[1])
     run = steps < end
     around = (axis[run][:, None, :] + ring[None, :, :]).reshape(-1, 3) / spacing
-    in_bone = ndimage.map_coordinates(bone.astype(np.uint8), around.T, order=0, mode="constant")
+    bone = bone.astype(np.uint8)
+    in_bone = ndimage.map_coordinates(bone, around.T, order=0, mode="constant")
     share = in_bone.reshape(-1, len(angles)).mean(axis=1)
     tip = steps[run] >= end - TIP_FREE_MM
     # A round tip that comes out by less than the bracket's radius leaves the ring in the bone to the run's end: the
     # axis past the run's end leaves the bone instead (family seed 13086: a 6.5 mm bracket out of a flat bone's far
     # side, 84 IPC points on its tip 0.5-2 mm past LINE_LENGTH_MM).
     past = axis[(steps >= end) & (steps <= end + TIP_PAST_MM)] / spacing
-    comes_out = (
-        share[tip].mean() <= OUT_OF_BONE or not ndimage.map_coordinates(bone.astype(np.uint8), past.T, order=0).all()
-    )
+    comes_out = share[tip].mean() <= OUT_OF_BONE or not ndimage.map_coordinates(bone, past.T, order=0).all()
     if share.max() < THROUGH_BONE or not comes_out:
         return LINE_LENGTH_MM
     return float(min(end + LINE_MARGIN_MM, MAX_LINE_MM))

@@ -28,7 +28,7 @@ from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
 from .metal import find_metal_zone
-from .morphology import all_behind, any_ahead, any_behind, dilate, erode, labelled, open_by_cube
+from .morphology import all_behind, any_ahead, any_behind, bounding_box, dilate, erode, labelled, open_by_cube
 from .parallel import in_parallel, in_slabs
 from .thin_appendages import wires_on_bone
 
@@ -289,7 +289,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if segmentation.bone_label <= 0:
         raise ValueError("the segmentation has no bone recognised yet; make it with segment_bone")
     bone = segmentation.bone_mask_in_box()
-    low, high = _bounding_box(bone, pad=4)
+    low, high = bounding_box(bone, pad=4)
     box = tuple(slice(a, b) for a, b in zip(low, high))
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
@@ -955,10 +955,3 @@ def resample_points(points, spacing_mm):
     order = np.lexsort((distance, cell_of_point))
     first = np.concatenate(([True], np.diff(cell_of_point[order]) != 0))
     return points[order[first]]
-
-
-def _bounding_box(mask, pad):
-    present = [np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a))) for a in range(3)]
-    low = np.array([max(p[0] - pad, 0) for p in present])
-    high = np.array([min(p[-1] + pad + 1, n) for p, n in zip(present, mask.shape)])
-    return low, high

@@ -175,6 +175,16 @@ def _ahead(mask, axis, length, combine):
     return window
 
 
+def bounding_box(mask, pad):
+    """(low, high), (3,) each: the voxel box holding ``mask``'s True voxels (at least one), widened by ``pad`` voxels
+    (one number, or one per axis) and cut to the volume; ``mask[low[0]:high[0], ...]`` is the box."""
+    pad = np.broadcast_to(np.asarray(pad, dtype=int), (3,))
+    present = [np.flatnonzero(mask.any(axis=tuple(b for b in range(3) if b != a))) for a in range(3)]
+    low = np.array([max(p[0] - d, 0) for p, d in zip(present, pad)])
+    high = np.array([min(p[-1] + d + 1, n) for p, d, n in zip(present, pad, mask.shape)])
+    return low, high
+
+
 class VoxelGraph:
     """The voxels of ``mask`` (I, J, K booleans) joined to their 26 neighbours in it, each step as long as it is
     (``spacing`` (3,) mm): ``distance`` measures along paths inside the mask, within 8 % of the straight distance."""
