@@ -400,19 +400,24 @@ def test_a_body_the_threshold_breaks_into_pieces_still_leads_to_its_bracket(seed
     assert score.coverage >= 0.8  # 83.8 and 88.6 % measured (95.0 and 88.6 % before, with the bracket's points)
 
 
-@pytest.mark.parametrize("seed, overrides", [(33028, {"frame": "star", "bracket": "resting"}), (14163, None)])
-def test_the_holes_noise_leaves_in_a_dim_bracket_are_no_marrow(seed, overrides):
+@pytest.mark.parametrize(
+    "seed, overrides, on_bone",
+    [(33028, {"frame": "star", "bracket": "resting"}, 1.0), (14163, None, 1.0), (23065, None, 0.99)],
+)
+def test_the_holes_noise_leaves_in_a_dim_bracket_are_no_marrow(seed, overrides, on_bone):
     """Noise leaves holes below the 200 HU threshold in a bracket about it, which the cut took for the marrow of a
     thin shaft of bone: the bracket was kept with the bone. 33028 (first met as a held-out draw; the star frame and
     the resting bracket forced): a 10 mm bracket of 229 HU under 61 HU of noise on a tibia in air, 3,402 of 32,363
     IPC points inside it. 14163 (full profile): an 11.5 mm bracket of 214 HU under 35 HU inserted into a tibia, 158
     points. The holes are 48 and 34 HU darker than the bracket round them, where a marrow cavity is darker than its
-    cortex by a cortex's contrast (150 HU): they are no marrow now, and the bracket is cut off."""
+    cortex by a cortex's contrast (150 HU): they are no marrow now, and the bracket is cut off. 23065 (full profile):
+    an 8 mm bracket of 333 HU under 71 HU of noise resting on a long bone, three holes 161 HU darker, a cell each
+    and no two sharing a face, 117 of 10,189 IPC points on it; a marrow cavity's cells are neighbours."""
     volume, truth = make_family_ct(seed, "full", overrides=overrides)
     _, score = run(volume, truth)
     assert not score.refused and score.found == score.visible >= 3
-    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
-    assert score.coverage >= 0.9  # 94.5 and 96.5 % measured (95.2 and 97.7 % before, with the bracket's points)
+    assert score.ipc_on_body == 0 and score.ipc_on_bone >= on_bone * score.ipc_points  # 23065: 99.1 % measured
+    assert score.coverage >= 0.9  # 94.5, 96.5 and 99.1 % measured (95.2, 97.7 and 99.1 % with the bracket's points)
 
 
 def test_a_cavity_beside_a_bracket_is_no_marrow_of_it():
