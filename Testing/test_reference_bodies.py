@@ -151,12 +151,8 @@ def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium, tmp
     """Marker 3's sphere blanked out: the other three are paired by the tool's distances and marker 3's centre is
     expected where they put it, inside the field of view."""
     volume, truth, _ = aluminium
-    voxels = volume.voxels.copy()
     centre = truth.marker_centres[2]
-    low = np.floor(volume.ras_to_ijk_points(centre[None])[0] - 16).astype(int)
-    grid = np.argwhere(np.ones((33, 33, 33), dtype=bool)) + low
-    voxels[tuple(grid[np.linalg.norm(volume.ijk_to_ras_points(grid) - centre, axis=1) < RADIUS + 0.8].T)] = -1000
-    blanked = type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
+    blanked = _blanked(volume, [centre])
     image = process_ct(blanked, tool_markers=TOOL)
     assert [sphere.number for sphere in image.usable] == [1, 2, 4]
     (missing,) = image.missing
@@ -177,23 +173,46 @@ def test_a_missing_sphere_is_located_where_the_other_three_put_it(aluminium, tmp
     ]
     assert main(arguments) == 0
     printed = capsys.readouterr().out
-    assert "marker 3         not found; the other markers put it at (" in printed and "inside the CT" in printed
+    assert "marker 3         not found; the other markers put it at (" in printed and "inside the CT\n" in printed
     document = json.loads((tmp_path / "i.json").read_text(encoding="utf-8"))
     (entry,) = document["missing_markers"]
     assert entry["number"] == 3 and np.linalg.norm(np.array(entry["expected"]) - centre) < 0.05
+    assert entry["in_field_of_view"] is True and entry["cut_by_field_of_view"] is False
     assert document["pairing"]["indices"][2] == -1 and document["bone"]["reference_body_cut_off"] is False
+
+
+def test_a_missing_sphere_at_the_edge_of_the_field_of_view_is_said_to_be_cut(aluminium):
+    """Marker 3's sphere blanked out and the CT cropped 2.75 mm above its centre: its expected centre is in the CT,
+    but a sphere there would reach out of it. The warning says so (scan the whole body), not 'hidden by metal'."""
+    volume, truth, _ = aluminium
+    centre = truth.marker_centres[2]
+    top = int(np.ceil(volume.ras_to_ijk_points(centre[None])[0][2] + 2.75 / volume.spacing[2]))
+    voxels = np.ascontiguousarray(_blanked(volume, [centre]).voxels[:, :, : top + 1])
+    image = process_ct(type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras), tool_markers=TOOL)
+    assert [sphere.number for sphere in image.usable] == [1, 2, 4]
+    (missing,) = image.missing
+    assert missing.number == 3 and missing.in_field_of_view and missing.cut_by_field_of_view
+    assert np.linalg.norm(missing.expected - centre) < 0.05
+    (warning,) = [warning for warning in image.warnings if warning.startswith("marker 3 not found")]
+    assert "a sphere there reaches out of it (cut by its edge): scan the whole reference body" in warning
+
+
+def _blanked(volume, centres):
+    """The CT with the marker spheres at ``centres`` (RAS mm) set to air, 0.8 mm beyond their radius."""
+    voxels = volume.voxels.copy()
+    for centre in centres:
+        low = np.floor(volume.ras_to_ijk_points(centre[None])[0] - 16).astype(int)
+        grid = np.argwhere(np.ones((33, 33, 33), dtype=bool)) + low
+        grid = grid[(grid >= 0).all(axis=1) & (grid < voxels.shape).all(axis=1)]
+        near = np.linalg.norm(volume.ijk_to_ras_points(grid) - centre, axis=1) < RADIUS + 0.8
+        voxels[tuple(grid[near].T)] = -1000
+    return type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
 
 
 def test_a_rod_or_a_frame_alone_is_no_marker(aluminium):
     """A reference body whose spheres are blanked out: its posts and frame give no sphere."""
     volume, truth, _ = aluminium
-    voxels = volume.voxels.copy()
-    for centre in truth.marker_centres:  # blank each sphere; its post stub stays
-        low = np.floor(volume.ras_to_ijk_points(centre[None])[0] - 16).astype(int)
-        grid = np.argwhere(np.ones((33, 33, 33), dtype=bool)) + low
-        near = np.linalg.norm(volume.ijk_to_ras_points(grid) - centre, axis=1) < RADIUS + 0.8
-        voxels[tuple(grid[near].T)] = -1000
-    blanked = type(volume)(voxels=voxels, ijk_to_ras=volume.ijk_to_ras)
+    blanked = _blanked(volume, truth.marker_centres)  # each sphere blanked; its post stub stays
     detection = detect_marker_spheres(blanked, segment_bone(blanked))
     assert detection.spheres == () and detection.rejected > 0
     assert any("found 0 marker-sphere candidates" in warning for warning in detection.warnings)

@@ -126,8 +126,10 @@ def run(arguments):
         )
     for missing in image.missing:
         centre = ", ".join(f"{value:.2f}" for value in missing.expected)
-        where = "inside" if missing.in_field_of_view else "outside"
-        print(f"{f'marker {missing.number}':<17}not found; the other markers put it at ({centre}), {where} the CT")
+        where = "inside the CT" if missing.in_field_of_view else "outside the CT"
+        if missing.cut_by_field_of_view:
+            where += ", but a sphere there is cut by its edge"
+        print(f"{f'marker {missing.number}':<17}not found; the other markers put it at ({centre}), {where}")
     recognition = segmentation.recognition
     bone = next(verdict for verdict in recognition.objects if verdict.label == recognition.label)
     print(

@@ -167,14 +167,21 @@ class MarkerSphere:
 
 @dataclass(frozen=True)
 class MissingMarker:
-    """A tool marker with no sphere found: where the other markers put it (RAS mm), and whether the CT holds it."""
+    """A tool marker with no sphere found: where the other markers put it (RAS mm), whether the CT holds that
+    centre, and whether a sphere there would be cut by the field of view (its centre in it, part of it out)."""
 
     number: int
     expected: np.ndarray
     in_field_of_view: bool
+    cut_by_field_of_view: bool = False
 
     def to_dict(self):
-        return {"number": self.number, "expected": self.expected.tolist(), "in_field_of_view": self.in_field_of_view}
+        return {
+            "number": self.number,
+            "expected": self.expected.tolist(),
+            "in_field_of_view": self.in_field_of_view,
+            "cut_by_field_of_view": self.cut_by_field_of_view,
+        }
 
 
 @dataclass(frozen=True)
@@ -653,17 +660,22 @@ def _pair_with_tool(volume, spheres, tool_markers, radius):
             used.add(row)
             continue
         in_view = in_field_of_view(volume, expected)
-        missing.append(MissingMarker(marker + 1, expected, in_view))
+        cut = in_view and cut_by_field_of_view(volume, expected, radius)
+        missing.append(MissingMarker(marker + 1, expected, in_view, cut))
         where = ", ".join(f"{value:.1f}" for value in expected)
-        warnings.append(
-            f"marker {marker + 1} not found: the other markers put its centre at ({where}) mm, "
-            + (
+        if cut:
+            advice = (
+                "inside the CT's field of view, but a sphere there reaches out of it (cut by its edge): scan the "
+                "whole reference body, or place its centre by hand"
+            )
+        elif in_view:
+            advice = (
                 "inside the CT's field of view: check the CT there (a sphere hidden by metal, damaged, or too dim), "
                 "or place its centre by hand"
-                if in_view
-                else "outside the CT's field of view: scan the whole reference body, or go on with the others"
             )
-        )
+        else:
+            advice = "outside the CT's field of view: scan the whole reference body, or go on with the others"
+        warnings.append(f"marker {marker + 1} not found: the other markers put its centre at ({where}) mm, {advice}")
     if pairing.ambiguous:
         warnings.append(
             f"the spheres fit the reference body's geometry in two ways (FRE {pairing.fre_mm:.2f} and "
