@@ -114,8 +114,8 @@ def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along,
     The IPC is the tube's surface, and the corner the blur fills where the rod meets it (0.5-2.3 % of the IPC, within
     1.6 mm of the tube); over 99 % of the tube's surface 3 mm or more away from the rod is there as without it.
     Where the rods of 400 and 600 HU meet the tube, the CT 0.5-1 mm under the corner's surface rises above the level
-    by less than 0.45 of the cortex's rise: that corner is left out, and the IPC lies within 0.52 mm of the tube
-    (0.60-0.68 mm with 0.3, the share before; the 280 HU rods' corners, 0.69 mm at most, are under the level)."""
+    by less than 0.45 of the cortex's rise (``CORNER_PEAK_SHARE``): that corner is left out, and the IPC lies within
+    0.52 mm of the tube (0.60-0.68 mm without it; the 280 HU rods' corners, 0.69 mm at most, are under the level)."""
     tube = _hollow_cylinder(outer=8.0, inner=5.0)
     tube[0] = (tube[0][0], 1500.0)
     axis = CENTRE + (0.0, 8.0 + radius - 0.5, 0.0)  # the rod's axis, its side 0.5 mm into the tube's cortex

@@ -374,8 +374,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # the cortex away, dim cancellous bone has no cortex under its surface either (a pelvis at 3 mm: 4,839 of its
     # 49,493 IPC points).
     dim = np.zeros(len(vertices_ijk), dtype=bool)
+    corner = np.zeros(len(vertices_ijk), dtype=bool)  # where a dim part meets the bone: left out after the mouths
     if resolved:
-        dim = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
+        dim, corner = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
     if level < segmentation.threshold_hu:
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
@@ -410,8 +411,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
     if (inner & ~dim).any():
         logger.info("%d IPC points on inner walls left out", int((inner & ~dim).sum()))
-    if (dim | inner).any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim | inner)
+    corner &= ~(dim | inner)
+    if corner.any():
+        logger.info("%d IPC points in the corner a dim part makes with the bone left out", int(corner.sum()))
+    if (dim | inner | corner).any():
+        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim | inner | corner)
     # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
     # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
     in_ct = vertices_ijk + segmentation.origin + low
@@ -635,11 +639,20 @@ UNDER_MM = (0.5, 1.0)
 #: 10 mm off the bone; 22051, 16058, 25047 alike), or the corner a dim bracket makes with the bone, the cortex's
 #: peak deeper under it (17012, 17043: 40-50 points each, 1-2.3 mm off the bone). Over 76 family CTs, 63 of 1.9
 #: million IPC points on the bone were below 0.3, and 38-86 % of those the rules before left on dim brackets (7 CTs).
-#: Above 0.3, the rest of such corners (26087: 60 points on a 153 HU bracket, 23093: 33): over the 59 of 1,300
-#: family CTs with points left on the body, 232 of their 555 are below 0.45 (177 below 0.4, 290 below 0.5), and 449
-#: on the bone, 434 of them within 2 mm of the body (where the corner meets the bone); over 140 CTs drawn from
-#: the other 1,241, 78 of 3.25 million (35 and 192), 50 more than 2 mm from the body, 32 of them in one CT (24095).
-DIM_PEAK_SHARE = 0.45
+DIM_PEAK_SHARE = 0.3
+#: ... and below this share, the rest of such corners (26087: 60 IPC points on a 153 HU bracket, 23093: 33; 19089: 60
+#: on a 1,146 HU bracket beside a 1,997 HU cortex): over the 59 of 1,300 family CTs with points left on the body,
+#: 232 of their 555 are below 0.45 (177 below 0.4, 290 below 0.5), and 449 on the bone, 434 of them within 2 mm of
+#: the body (where the corner meets the bone); over 140 CTs drawn from the other 1,241, 78 of 3.25 million (35 and
+#: 192), 50 more than 2 mm from the body, 32 of them in one CT (24095). They are left out after the mouths of holes
+#: are found (``_mouths``), which the points below DIM_PEAK_SHARE are kept out of: taken out of that mesh too, they
+#: split a mouth (18080: 39 points of a mouth stayed, 30 of them on the bracket).
+CORNER_PEAK_SHARE = 0.45
+#: ... where what lies beyond the point (``_across_surface``) is brighter than what the bone's surface touches by
+#: more than this (HU): the dim part. Bone surface where a thin or dim cortex rises less than CORNER_PEAK_SHARE
+#: touches the same tissue or air as the rest (family seed 12042: 1,280 of 68,049 IPC points of a thin 1,990 HU
+#: cortex under 15 mm of tissue, without it).
+CORNER_BRIGHTER_HU = 50.0
 
 
 def _across_surface(original, vertices, down, spacing):
@@ -663,17 +676,19 @@ def _along_gradient(original, vertices, down, spacing, distances):
 
 
 def _without_cortex(original, vertices, down, level, spacing):
-    """(M,) booleans: surface points (vertices (M, 3), ``down`` (M, 3) the way out of the bone) with no cortex under
-    them in the CT (``original``): the surface ``level`` (HU) above NO_CORTEX_SHARE of the rise from what lies
-    beyond the point to the peak under it (``_across_surface``). That is a part about as bright as the level joined to
-    the bone: family seed 19027, a 271 HU bracket resting on a fibula at a 251 HU level, 1,287 IPC points on it 1 mm
-    inside the bracket; 19077, a 202 HU bracket's stub on a flat bone in air at 63 HU, 103 points. Where the bone
-    touches something brighter than the level (its neighbour across a narrow gap) there is no rise to measure, and the
-    point is kept. A point where the CT UNDER_MM under it rises above the level by less than DIM_PEAK_SHARE of the
-    cortex's rise above it (the median peak of the points crossing one) has no cortex under it either, whatever lies
-    beyond.
+    """Two (M,) booleans, ``dim`` and ``corner``. ``dim``: surface points (vertices (M, 3), ``down`` (M, 3) the way
+    out of the bone) with no cortex under them in the CT (``original``): the surface ``level`` (HU) above
+    NO_CORTEX_SHARE of the rise from what lies beyond the point to the peak under it (``_across_surface``). That is
+    a part about as bright as the level joined to the bone: family seed 19027, a 271 HU bracket resting on a fibula
+    at a 251 HU level, 1,287 IPC points on it 1 mm inside the bracket; 19077, a 202 HU bracket's stub on a flat bone
+    in air at 63 HU, 103 points. Where the bone touches something brighter than the level (its neighbour across a
+    narrow gap) there is no rise to measure, and the point is kept. A point where the CT UNDER_MM under it rises
+    above the level by less than DIM_PEAK_SHARE of the cortex's rise above it (the median peak of the points
+    crossing one) has no cortex under it either, whatever lies beyond. ``corner``: the points not ``dim`` where that
+    rise is less than CORNER_PEAK_SHARE and what lies beyond is brighter by CORNER_BRIGHTER_HU than what the
+    surface's points crossing a cortex touch (their median): where a dim part meets the bone.
 
-    None when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
+    Neither when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
     a cortex above HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it:
     family seeds 13023, 17021) lies near the top of every point's rise, and the surface is taken again at the level
     read across it (``_local_half_max``). The whole profile is read only where the CT UNDER_MM under the point is no
@@ -681,22 +696,30 @@ def _without_cortex(original, vertices, down, level, spacing):
     worst): a cortex under the point rules it out."""
     dim = np.zeros(len(vertices), dtype=bool)
     if len(vertices) == 0:
-        return dim
+        return dim, dim.copy()
     every = slice(None, None, max(1, len(vertices) // LOCAL_SAMPLES))
     peak, beyond = _across_surface(original, vertices[every], down[every], spacing)
     rise = peak - beyond
     crossing = rise >= CORTEX_CONTRAST_HU
     if not crossing.any() or np.median((level - beyond[crossing]) / rise[crossing]) > HALF_WAY_MAX:
-        return dim
+        return dim, dim.copy()
     under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
-    dim = under < level + DIM_PEAK_SHARE * (float(np.median(peak[crossing])) - level)
+    cortex_rise = float(np.median(peak[crossing])) - level
+    dim = under < level + DIM_PEAK_SHARE * cortex_rise
+    corner = (under < level + CORNER_PEAK_SHARE * cortex_rise) & ~dim
+    if corner.any():  # ... where the point touches something brighter than what the bone's surface touches
+        touches = float(np.median(beyond[crossing]))
+        candidates = np.nonzero(corner)[0]
+        corner[candidates] = _across_surface(original, vertices[candidates], down[candidates], spacing)[1] > (
+            touches + CORNER_BRIGHTER_HU
+        )
     lowest = float(original.min())
     highest_peak = level + (1.0 / NO_CORTEX_SHARE - 1.0) * (level - lowest)
     maybe = np.nonzero((under <= highest_peak) & ~dim)[0]
     if len(maybe):
         peak, beyond = _across_surface(original, vertices[maybe], down[maybe], spacing)
         dim[maybe] = (level > beyond) & (level - beyond > NO_CORTEX_SHARE * (peak - beyond))
-    return dim
+    return dim, corner & ~dim
 
 
 #: The half-max read across the surface: the cortex's peak within this far (mm) inside each sampled surface point,
