@@ -640,18 +640,18 @@ UNDER_MM = (0.5, 1.0)
 #: peak deeper under it (17012, 17043: 40-50 points each, 1-2.3 mm off the bone). Over 76 family CTs, 63 of 1.9
 #: million IPC points on the bone were below 0.3, and 38-86 % of those the rules before left on dim brackets (7 CTs).
 DIM_PEAK_SHARE = 0.3
-#: ... and below this share, the rest of such corners (26087: 60 IPC points on a 153 HU bracket, 23093: 33; 19089: 60
-#: on a 1,146 HU bracket beside a 1,997 HU cortex): over the 59 of 1,300 family CTs with points left on the body,
-#: 232 of their 555 are below 0.45 (177 below 0.4, 290 below 0.5), and 449 on the bone, 434 of them within 2 mm of
-#: the body (where the corner meets the bone); over 140 CTs drawn from the other 1,241, 78 of 3.25 million (35 and
-#: 192), 50 more than 2 mm from the body, 32 of them in one CT (24095). They are left out after the mouths of holes
-#: are found (``_mouths``), which the points below DIM_PEAK_SHARE are kept out of: taken out of that mesh too, they
-#: split a mouth (18080: 39 points of a mouth stayed, 30 of them on the bracket).
+#: ... and below this share, the rest of such corners (26087: 60 IPC points on a 153 HU bracket, 23093: 33), where
+#: what lies beyond is brighter by CORNER_BRIGHTER_HU than what the bone's surface touches: the dim part. They are
+#: left out after the mouths of holes are found (``_mouths``), from which the points below DIM_PEAK_SHARE are kept
+#: out (0.45 for both split 18080's mouth: 1 -> 31 points on the bracket). Over the 59 of 1,300 family CTs with
+#: points on the body, 232 of their 555 are below 0.45 (177 below 0.4, 290 below 0.5); over 140 CTs drawn from the
+#: other 1,241, 78 of 3.25 million points on the bone, 50 of them more than 2 mm from the body. With the brighter
+#: beyond: 194 and 16 (3); the 1,300 CTs' run gave 555 -> 361 points on the body, 14 CTs with none left, and 557
+#: fewer of the 27.3 million on the bone, at most 39 in one CT.
 CORNER_PEAK_SHARE = 0.45
-#: ... where what lies beyond the point (``_across_surface``) is brighter than what the bone's surface touches by
-#: more than this (HU): the dim part. Bone surface where a thin or dim cortex rises less than CORNER_PEAK_SHARE
-#: touches the same tissue or air as the rest (family seed 12042: 1,280 of 68,049 IPC points of a thin 1,990 HU
-#: cortex under 15 mm of tissue, without it).
+#: ... the brighter beyond (HU). Bone surface where a thin or dim cortex rises less than CORNER_PEAK_SHARE touches
+#: the same tissue or air as the rest (family seed 12042: 1,280 of 68,049 IPC points of a thin 1,990 HU cortex under
+#: 15 mm of tissue without it, none with it).
 CORNER_BRIGHTER_HU = 50.0
 
 
