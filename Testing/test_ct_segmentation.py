@@ -135,6 +135,46 @@ def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along,
     assert kept.mean() > 0.99
 
 
+def _box_sdf(low, high):
+    centre, half = (np.asarray(low, float) + high) / 2.0, (np.asarray(high, float) - low) / 2.0
+
+    def sdf(points):
+        q = np.abs(points - centre) - half
+        return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+    return sdf
+
+
+@pytest.mark.parametrize("rotation_deg", [0.0, 30.0])
+def test_the_bone_under_a_dim_block_resting_on_it_is_at_its_own_half_max(rotation_deg):
+    """A flat bone in air (a 26 x 26 x 6 mm plate: 1.5 mm of 1500 HU cortex round 350 HU) with a 150 HU block (10 x 10
+    x 6 mm, a plastic bracket) resting on its top. The half-max level read round the bone (about 175 HU) is half-way
+    up from air; under the block the bone's blur runs into 150 HU, so that level lies out in the blur, 1.0 mm up in
+    the block (family seed 26087: 53 IPC points 0.5-1 mm off the bone). Half-way between the cortex and the block,
+    the surface there is the plate's top: within 0.3 mm of it (0.17 and 0.27 mm measured), and nothing else moves."""
+    top = CENTRE[2] + 3.0
+    plate = (_box_sdf(CENTRE - (13.0, 13.0, 3.0), CENTRE + (13.0, 13.0, 3.0)), 1500.0)
+    inside = (_box_sdf(CENTRE - (11.0, 11.0, 1.5), CENTRE + (11.0, 11.0, 1.5)), 350.0)
+    block = (_box_sdf(CENTRE + (-5.0, -5.0, 3.0), CENTRE + (5.0, 5.0, 9.0)), 150.0)
+    volume = analytic_volume(
+        [plate, inside, block], size_mm=(36.0, 36.0, 26.0), blur_mm=0.5, noise_hu=10.0, rotation_deg=rotation_deg
+    )
+    segmentation = segment_bone(volume)
+    own = bone_surface(volume, segmentation).points
+    level = bone_surface(volume, segmentation, own_half_max=False).points
+    assert own.shape == level.shape  # the same points, some moved
+
+    def under_the_block(points):  # 1.5 mm or more inside its footprint, on the plate's top
+        return np.all(np.abs(points[:, :2] - CENTRE[:2]) < 3.5, axis=1) & (points[:, 2] > CENTRE[2])
+
+    under = under_the_block(own)
+    assert under.sum() > 50
+    assert np.abs(own[under, 2] - top).max() < 0.3 and abs(np.median(own[under, 2] - top)) < 0.12
+    assert np.median(level[under_the_block(level), 2] - top) > 0.8  # out in the blur at the level read round it
+    away = np.any(np.abs(level[:, :2] - CENTRE[:2]) > 8.0, axis=1)  # 3 mm or more from the block
+    assert np.array_equal(own[away], level[away])
+
+
 def test_bone_is_the_largest_object_and_the_rest_are_candidates():
     shapes = [(sphere_sdf(CENTRE, 10.0), 1200.0), (sphere_sdf(CENTRE + (0, 0, 16.0), 3.0), 800.0)]
     segmentation = segment_bone(analytic_volume(shapes, size_mm=(40.0, 40.0, 50.0)))

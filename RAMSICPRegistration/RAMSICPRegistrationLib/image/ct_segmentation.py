@@ -272,7 +272,7 @@ class BoneSurface:
     left_out_body: int = 0
 
 
-def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", leave_out_metal=True):
+def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", leave_out_metal=True, own_half_max=None):
     """The bone's outer iso-surface in RAS mm (the IPC).
 
     Args:
@@ -285,6 +285,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             coarser CTs get the threshold surface. ``'threshold'`` uses the segmentation threshold; or a number.
         leave_out_metal: drop the surface in the metal zone (``metal.find_metal_zone``); False keeps it, to
             see what the metal does.
+        own_half_max: move the points that touch something brighter than the rest of the surface touches (a dim
+            bracket resting on the bone) up the gradient to their own half-max (``_to_own_half_max``); None: with
+            the ``'half-max'`` level.
     """
     if segmentation.bone_label <= 0:
         raise ValueError("the segmentation has no bone recognised yet; make it with segment_bone")
@@ -294,6 +297,8 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     mask = bone[box]
     image = segmentation.smoothed[box].copy()
     half_max = level == "half-max"
+    if own_half_max is None:
+        own_half_max = half_max
     fine = volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6  # voxels that resolve the cortex
     # A level read as a half-max or given (not the threshold), on such voxels: a cortex's edge.
     resolved = level != "threshold" and fine
@@ -375,8 +380,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # 49,493 IPC points).
     dim = np.zeros(len(vertices_ijk), dtype=bool)
     corner = np.zeros(len(vertices_ijk), dtype=bool)  # where a dim part meets the bone: left out after the mouths
-    if resolved:
-        dim, corner = _without_cortex(original, vertices_ijk, down, level, volume.spacing)
+    contrast = _surface_contrast(original, vertices_ijk, down, level, volume.spacing) if resolved else None
+    if contrast is not None:
+        dim, corner = _without_cortex(original, vertices_ijk, down, level, volume.spacing, contrast)
     if level < segmentation.threshold_hu:
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
@@ -412,6 +418,23 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if (inner & ~dim).any():
         logger.info("%d IPC points on inner walls left out", int((inner & ~dim).sum()))
     corner &= ~(dim | inner)
+    if contrast is not None and own_half_max:
+        # Not beside an inner wall: a hole's mouth moved is its wall (family seed 19085: 10 IPC points on a 138 HU
+        # bracket 0.5-0.9 mm inside the bone, up to 1.3 mm from the wall left out; within 0.5 mm of the bone's
+        # surface before).
+        movable = ~(dim | inner | corner)
+        if inner.any():
+            to_wall, _ = cKDTree(vertices_ijk[inner] * volume.spacing).query(
+                vertices_ijk[movable] * volume.spacing, distance_upper_bound=OWN_HALF_MAX_WALL_MM
+            )
+            movable[movable] = ~np.isfinite(to_wall)
+        moved = 0
+        if movable.any():
+            vertices_ijk[movable], moved = _to_own_half_max(
+                original, vertices_ijk[movable], down[movable], level, volume.spacing, contrast[1]
+            )
+        if moved:
+            logger.info("%d IPC points touching something brighter than the rest moved to their own half-max", moved)
     if corner.any():
         logger.info("%d IPC points in the corner a dim part makes with the bone left out", int(corner.sum()))
     if (dim | inner | corner).any():
@@ -454,7 +477,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             logger.info(
                 "bone surface at half-max %.0f HU read across the surface (%.0f HU round the bone)", local, level
             )
-            return bone_surface(volume, segmentation, fill_cavities, local, leave_out_metal)
+            return bone_surface(volume, segmentation, fill_cavities, local, leave_out_metal, own_half_max)
     return BoneSurface(
         points=volume.ijk_to_ras_points(vertices_ijk + origin),
         triangles=triangles,
@@ -658,11 +681,15 @@ CORNER_BRIGHTER_HU = 50.0
 def _across_surface(original, vertices, down, spacing):
     """The CT (``original``, the denoised HU) across the surface at vertices (M, 3) (indices in it), ``down`` ((M, 3),
     ``_downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
-    peak) and the median LOCAL_OUTSIDE_MM down it (what the bone touches), (M,) HU each."""
-    outside = np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.5)
-    values = _along_gradient(original, vertices, down, spacing, [*_UP_TO_THE_PEAK_MM, *outside])
-    inside = len(_UP_TO_THE_PEAK_MM)
-    return np.max(values[:inside], axis=0), np.median(values[inside:], axis=0)
+    peak) and what the bone touches (``_beyond``), (M,) HU each."""
+    peak = _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
+    return peak, _beyond(original, vertices, down, spacing)
+
+
+def _beyond(original, vertices, down, spacing):
+    """(M,) HU: what the bone touches at vertices (M, 3), the median of the CT (``original``) LOCAL_OUTSIDE_MM down
+    the gradient (``down``, (M, 3))."""
+    return np.median(_along_gradient(original, vertices, down, spacing, _BEYOND_MM), axis=0)
 
 
 def _along_gradient(original, vertices, down, spacing, distances):
@@ -675,7 +702,25 @@ def _along_gradient(original, vertices, down, spacing, distances):
     return np.array(in_parallel(*steps))
 
 
-def _without_cortex(original, vertices, down, level, spacing):
+def _surface_contrast(original, vertices, down, level, spacing):
+    """The cortex's peak and what the bone touches (HU), read across the surface (vertices (M, 3), ``down`` (M, 3)
+    the way out of the bone) in the CT (``original``): their medians over up to LOCAL_SAMPLES of its points that
+    cross a cortex (a rise of CORTEX_CONTRAST_HU). None when none does, or when the surface ``level`` (HU) is not
+    the half-max of that cortex (the share of their rise it lies at, its median, above HALF_WAY_MAX): a level read
+    off a rim brighter than the cortex (a bracket's or a pin's in it: family seeds 13023, 17021) lies near the top of
+    every point's rise, and the surface is taken again at the level read across it (``_local_half_max``)."""
+    if len(vertices) == 0:
+        return None
+    every = slice(None, None, max(1, len(vertices) // LOCAL_SAMPLES))
+    peak, beyond = _across_surface(original, vertices[every], down[every], spacing)
+    rise = peak - beyond
+    crossing = rise >= CORTEX_CONTRAST_HU
+    if not crossing.any() or np.median((level - beyond[crossing]) / rise[crossing]) > HALF_WAY_MAX:
+        return None
+    return float(np.median(peak[crossing])), float(np.median(beyond[crossing]))
+
+
+def _without_cortex(original, vertices, down, level, spacing, contrast):
     """Two (M,) booleans, ``dim`` and ``corner``. ``dim``: surface points (vertices (M, 3), ``down`` (M, 3) the way
     out of the bone) with no cortex under them in the CT (``original``): the surface ``level`` (HU) above
     NO_CORTEX_SHARE of the rise from what lies beyond the point to the peak under it (``_across_surface``). That is
@@ -683,34 +728,22 @@ def _without_cortex(original, vertices, down, level, spacing):
     at a 251 HU level, 1,287 IPC points on it 1 mm inside the bracket; 19077, a 202 HU bracket's stub on a flat bone
     in air at 63 HU, 103 points. Where the bone touches something brighter than the level (its neighbour across a
     narrow gap) there is no rise to measure, and the point is kept. A point where the CT UNDER_MM under it rises
-    above the level by less than DIM_PEAK_SHARE of the cortex's rise above it (the median peak of the points
-    crossing one) has no cortex under it either, whatever lies beyond. ``corner``: the points not ``dim`` where that
-    rise is less than CORNER_PEAK_SHARE and what lies beyond is brighter by CORNER_BRIGHTER_HU than what the
-    surface's points crossing a cortex touch (their median): where a dim part meets the bone.
+    above the level by less than DIM_PEAK_SHARE of the cortex's rise above it (``contrast``: the cortex's peak and
+    what the bone touches, ``_surface_contrast``) has no cortex under it either, whatever lies beyond. ``corner``:
+    the points not ``dim`` where that rise is less than CORNER_PEAK_SHARE and what lies beyond is brighter by
+    CORNER_BRIGHTER_HU than what the bone touches: where a dim part meets the bone.
 
-    Neither when the level is not the half-max of the surface's own cortex (the share's median over the points crossing
-    a cortex above HALF_WAY_MAX): a level read off a rim brighter than the cortex (a bracket's or a pin's in it:
-    family seeds 13023, 17021) lies near the top of every point's rise, and the surface is taken again at the level
-    read across it (``_local_half_max``). The whole profile is read only where the CT UNDER_MM under the point is no
-    brighter than the peak of a point without a cortex can be, whatever lies beyond it (the CT's lowest value at
-    worst): a cortex under the point rules it out."""
-    dim = np.zeros(len(vertices), dtype=bool)
-    if len(vertices) == 0:
-        return dim, dim.copy()
-    every = slice(None, None, max(1, len(vertices) // LOCAL_SAMPLES))
-    peak, beyond = _across_surface(original, vertices[every], down[every], spacing)
-    rise = peak - beyond
-    crossing = rise >= CORTEX_CONTRAST_HU
-    if not crossing.any() or np.median((level - beyond[crossing]) / rise[crossing]) > HALF_WAY_MAX:
-        return dim, dim.copy()
+    The whole profile is read only where the CT UNDER_MM under the point is no brighter than the peak of a point
+    without a cortex can be, whatever lies beyond it (the CT's lowest value at worst): a cortex under the point rules
+    it out."""
+    cortex, touches = contrast
     under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
-    cortex_rise = float(np.median(peak[crossing])) - level
+    cortex_rise = cortex - level
     dim = under < level + DIM_PEAK_SHARE * cortex_rise
     corner = (under < level + CORNER_PEAK_SHARE * cortex_rise) & ~dim
     if corner.any():  # ... where the point touches something brighter than what the bone's surface touches
-        touches = float(np.median(beyond[crossing]))
         candidates = np.nonzero(corner)[0]
-        corner[candidates] = _across_surface(original, vertices[candidates], down[candidates], spacing)[1] > (
+        corner[candidates] = _beyond(original, vertices[candidates], down[candidates], spacing) > (
             touches + CORNER_BRIGHTER_HU
         )
     lowest = float(original.min())
@@ -722,6 +755,46 @@ def _without_cortex(original, vertices, down, level, spacing):
     return dim, corner & ~dim
 
 
+#: Where a surface point touches something brighter by CORNER_BRIGHTER_HU than what the bone's surface touches (a dim
+#: bracket resting on it, tissue where the rest is in air) but dimmer than the surface level, that level, read round
+#: the bone, lies low on the point's rise, out in the blur: the point is moved up the gradient to its own half-max
+#: (half-way between the peak under it and what lies beyond), looked for within this far (mm; not found: the point
+#: stays). Family seed 26087: 53 IPC points 0.5-1 mm off a flat bone in air, in a 153 HU bracket resting on it.
+OWN_HALF_MAX_REACH_MM = 1.5
+#: ... read this finely (mm) along the gradient, linearly in between.
+OWN_HALF_MAX_STEP_MM = 0.1
+#: ... not within this far (mm) of an inner wall.
+OWN_HALF_MAX_WALL_MM = 2.0
+
+
+def _to_own_half_max(original, vertices, down, level, spacing, touches):
+    """Vertices (M, 3) (indices in ``original``, the denoised CT) with those that touch something brighter than
+    ``touches`` (HU, what the bone's surface touches) by CORNER_BRIGHTER_HU, and dimmer than the surface ``level``,
+    moved up the gradient (``down``, (M, 3), the way out of the bone) to where the CT reaches their own half-max,
+    and how many were moved."""
+    beyond = _beyond(original, vertices, down, spacing)
+    candidates = np.nonzero((beyond > touches + CORNER_BRIGHTER_HU) & (beyond < level))[0]
+    if len(candidates) == 0:
+        return vertices, 0
+    at, way = vertices[candidates], down[candidates]
+    peak = _along_gradient(original, at, way, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
+    own = 0.5 * (peak + beyond[candidates])
+    depths = np.arange(0.0, OWN_HALF_MAX_REACH_MM + 1e-6, OWN_HALF_MAX_STEP_MM)
+    profile = _along_gradient(original, at, way, spacing, -depths)  # (D, C), into the bone
+    reached = profile >= own
+    first = reached.argmax(axis=0)
+    movable = (own > level) & reached.any(axis=0) & (first > 0)
+    columns = np.nonzero(movable)[0]
+    if len(columns) == 0:
+        return vertices, 0
+    before, after = profile[first[columns] - 1, columns], profile[first[columns], columns]
+    fraction = (own[columns] - before) / np.maximum(after - before, 1e-6)
+    depth = depths[first[columns] - 1] + fraction * OWN_HALF_MAX_STEP_MM
+    moved = vertices.copy()
+    moved[candidates[columns]] -= depth[:, None] * way[columns] / spacing
+    return moved, len(columns)
+
+
 #: The half-max read across the surface: the cortex's peak within this far (mm) inside each sampled surface point,
 #: what lies beyond it this far out (mm, past the blur, within a thin layer of soft tissue), at most this many points.
 LOCAL_INSIDE_MM = 2.5
@@ -729,6 +802,8 @@ LOCAL_OUTSIDE_MM = (1.0, 2.0)
 LOCAL_SAMPLES = 4000
 #: Where the cortex's peak under a surface point is looked for (mm along the gradient; negative: into the bone).
 _UP_TO_THE_PEAK_MM = tuple(-np.arange(0.0, LOCAL_INSIDE_MM + 1e-6, 0.5))
+#: ... and what it touches (mm down the gradient).
+_BEYOND_MM = tuple(np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, 0.5))
 #: ... and the IPC is taken again at that level when it is this far (HU) from the one read round the bone.
 LEVEL_TOLERANCE_HU = 40.0
 
