@@ -423,15 +423,10 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # bracket 0.5-0.9 mm inside the bone, up to 1.3 mm from the wall left out; within 0.5 mm of the bone's
         # surface before).
         movable = ~(dim | inner | corner)
-        if inner.any():
-            to_wall, _ = cKDTree(vertices_ijk[inner] * volume.spacing).query(
-                vertices_ijk[movable] * volume.spacing, distance_upper_bound=OWN_HALF_MAX_WALL_MM
-            )
-            movable[movable] = ~np.isfinite(to_wall)
         moved = 0
         if movable.any():
             vertices_ijk[movable], moved = _to_own_half_max(
-                original, vertices_ijk[movable], down[movable], level, volume.spacing, contrast[1]
+                original, vertices_ijk[movable], down[movable], level, volume.spacing, contrast[1], vertices_ijk[inner]
             )
         if moved:
             logger.info("%d IPC points touching something brighter than the rest moved to their own half-max", moved)
@@ -767,13 +762,18 @@ OWN_HALF_MAX_STEP_MM = 0.1
 OWN_HALF_MAX_WALL_MM = 2.0
 
 
-def _to_own_half_max(original, vertices, down, level, spacing, touches):
+def _to_own_half_max(original, vertices, down, level, spacing, touches, walls):
     """Vertices (M, 3) (indices in ``original``, the denoised CT) with those that touch something brighter than
     ``touches`` (HU, what the bone's surface touches) by CORNER_BRIGHTER_HU, and dimmer than the surface ``level``,
     moved up the gradient (``down``, (M, 3), the way out of the bone) to where the CT reaches their own half-max,
-    and how many were moved."""
+    and how many were moved. Not those within OWN_HALF_MAX_WALL_MM of an inner wall's vertices (W, 3)."""
     beyond = _beyond(original, vertices, down, spacing)
     candidates = np.nonzero((beyond > touches + CORNER_BRIGHTER_HU) & (beyond < level))[0]
+    if len(candidates) and len(walls):
+        to_wall, _ = cKDTree(walls * spacing).query(
+            vertices[candidates] * spacing, distance_upper_bound=OWN_HALF_MAX_WALL_MM
+        )
+        candidates = candidates[~np.isfinite(to_wall)]
     if len(candidates) == 0:
         return vertices, 0
     at, way = vertices[candidates], down[candidates]
