@@ -676,9 +676,14 @@ CORNER_BRIGHTER_HU = 50.0
 def _across_surface(original, vertices, down, spacing):
     """The CT (``original``, the denoised HU) across the surface at vertices (M, 3) (indices in it), ``down`` ((M, 3),
     ``_downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
-    peak) and what the bone touches (``_beyond``), (M,) HU each."""
-    peak = _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
-    return peak, _beyond(original, vertices, down, spacing)
+    peak, ``_peak_under``) and what the bone touches (``_beyond``), (M,) HU each."""
+    return _peak_under(original, vertices, down, spacing), _beyond(original, vertices, down, spacing)
+
+
+def _peak_under(original, vertices, down, spacing):
+    """(M,) HU: the cortex's peak under vertices (M, 3), the brightest value of the CT (``original``) within
+    LOCAL_INSIDE_MM up the gradient (``down``, (M, 3))."""
+    return _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
 
 
 def _beyond(original, vertices, down, spacing):
@@ -777,8 +782,7 @@ def _to_own_half_max(original, vertices, down, level, spacing, touches, walls):
     if len(candidates) == 0:
         return vertices, 0
     at, way = vertices[candidates], down[candidates]
-    peak = _along_gradient(original, at, way, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
-    own = 0.5 * (peak + beyond[candidates])
+    own = 0.5 * (_peak_under(original, at, way, spacing) + beyond[candidates])
     depths = np.arange(0.0, OWN_HALF_MAX_REACH_MM + 1e-6, OWN_HALF_MAX_STEP_MM)
     profile = _along_gradient(original, at, way, spacing, -depths)  # (D, C), into the bone
     reached = profile >= own
