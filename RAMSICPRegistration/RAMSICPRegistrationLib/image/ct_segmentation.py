@@ -594,9 +594,8 @@ def _mouths(vertices, triangles, inner, down, spacing):
     # a way through a wall leaves it again at its edge, no nearer), so the graph is made of them alone.
     others = np.flatnonzero(~walls)
     reach = MOUTH_MM + 1e-6  # the tree's bound is strict, the graph's limit is not
-    straight, _ = cKDTree(vertices[leaving] * spacing).query(vertices[others] * spacing, distance_upper_bound=reach)
     band = np.zeros(count, dtype=bool)
-    band[others[np.isfinite(straight)]] = True
+    band[others[_near(vertices[others], vertices[leaving], spacing, reach)]] = True
     band[leaving] = True
     edges = edges[band[edges[:, 0]] & band[edges[:, 1]]]
     lengths = np.linalg.norm((vertices[edges[:, 0]] - vertices[edges[:, 1]]) * spacing, axis=1)
@@ -788,10 +787,7 @@ def _to_own_half_max(original, vertices, down, level, spacing, touches, walls):
     beyond = _beyond(original, vertices, down, spacing)
     candidates = np.nonzero((beyond > touches + CORNER_BRIGHTER_HU) & (beyond < level))[0]
     if len(candidates) and len(walls):
-        to_wall, _ = cKDTree(walls * spacing).query(
-            vertices[candidates] * spacing, distance_upper_bound=OWN_HALF_MAX_WALL_MM
-        )
-        candidates = candidates[~np.isfinite(to_wall)]
+        candidates = candidates[~_near(vertices[candidates], walls, spacing, OWN_HALF_MAX_WALL_MM)]
     if len(candidates) == 0:
         return vertices, 0
     at, way = vertices[candidates], down[candidates]
@@ -1005,8 +1001,14 @@ def _within(voxels, vertices_ijk, spacing, margin):
     where = np.argwhere(voxels[tuple(slice(a, b) for a, b in zip(low, high))]) + low
     if len(where) == 0:
         return np.zeros(len(vertices_ijk), dtype=bool)
+    return _near(vertices_ijk, where, spacing, margin)
+
+
+def _near(points_ijk, others_ijk, spacing, reach):
+    """(M,) booleans: the points (M, 3) closer than ``reach`` (mm) to any of ``others_ijk`` (N, 3, N > 0), both in
+    voxel indices (fractional or not) of a grid of ``spacing`` (3,) mm."""
     # The grid's axes are orthogonal: index times spacing is a distance-preserving frame (mm).
-    distance, _ = cKDTree(where * spacing).query(vertices_ijk * spacing, distance_upper_bound=margin)
+    distance, _ = cKDTree(others_ijk * spacing).query(points_ijk * spacing, distance_upper_bound=reach)
     return np.isfinite(distance)
 
 
