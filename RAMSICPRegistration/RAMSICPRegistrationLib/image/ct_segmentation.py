@@ -21,13 +21,14 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from .beyond_metal import beyond_metal
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
-from .metal import find_metal_zone
+from .metal import METAL_EDGE_MM, find_metal_zone
 from .morphology import all_behind, any_ahead, any_behind, bounding_box, dilate, erode, labelled, open_by_cube
 from .parallel import in_parallel, in_slabs
 from .thin_appendages import wires_on_bone
@@ -346,6 +347,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         if fine:
             near |= _enclosed_along_lines(mask, _on_ct_edge(segmentation, low, high, volume), volume.spacing, padding)
         mask = mask | (_joined_above(image >= level, mask, other) & near)
+    joined = beyond_metal(mask, image, volume.spacing)  # what a metal bracket joins to the bone: another object
+    if joined.any():
+        mask, other = mask & ~joined, other | joined
     wire = wires_on_bone(mask, volume.spacing, own=bone[box])  # a wire joined to the bone: another object
     if wire.any():
         mask, other = mask & ~wire, other | wire
@@ -1036,8 +1040,6 @@ def fill_axis(mask, spacing):
 
 #: Denoised values below this (HU) are no air: a round field of view's padding, blurred.
 BELOW_AIR_HU = -1100.0
-#: The blurred edge of metal reaches this far (mm) into what is round it.
-METAL_EDGE_MM = 2.5
 
 
 def _surface_level(image, mask, threshold, level, spacing):

@@ -28,6 +28,8 @@ from .hounsfield import METAL_HU
 METAL_MARGIN_MM = 3.0
 #: In the metal's own slices, surface within this of it (mm) is left out (streaks).
 STREAK_REACH_MM = 30.0
+#: The blurred edge of metal reaches this far (mm) into what is round it.
+METAL_EDGE_MM = 2.5
 
 
 @dataclass(frozen=True)
