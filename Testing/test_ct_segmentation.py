@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from RAMSICPRegistrationLib.image import ct_segmentation
 from RAMSICPRegistrationLib.image.ct_segmentation import (
     bone_surface,
     fill_axis,
@@ -187,7 +188,7 @@ def _capsule_sdf(start, end, radius):
 
 
 @pytest.mark.parametrize("rotation_deg", [0.0, 30.0])
-def test_the_base_of_a_wire_in_the_bone_leaves_no_surface_in_the_ipc(rotation_deg):
+def test_the_base_of_a_wire_in_the_bone_leaves_no_surface_in_the_ipc(rotation_deg, monkeypatch):
     """A shaft in soft tissue (radius 9 mm, 2.5 mm of 1100 HU cortex round 250 HU) with a 3 mm wire of 1400 HU
     inserted square to it, to its axis, 13 mm out. The wire is cut off the bone's object, but its first millimetres
     stay with it, and their surface went into the IPC: 26 and 33 points 0.5-1.8 mm off the shaft. Now none is 0.3 mm
@@ -199,9 +200,15 @@ def test_the_base_of_a_wire_in_the_bone_leaves_no_surface_in_the_ipc(rotation_de
         shapes, size_mm=(56.0, 34.0, 40.0), background_hu=40.0, blur_mm=0.5, noise_hu=15.0, rotation_deg=rotation_deg
     )
     segmentation = segment_bone(volume)
-    points = bone_surface(volume, segmentation).points
+    surface = bone_surface(volume, segmentation)
+    points = surface.points
     off_shaft = np.abs(np.linalg.norm(points[:, :2] - CENTRE[:2], axis=1) - 9.0)
     assert off_shaft.max() < 0.3
+    # The points left out are counted (``ramsicp ipc`` reports them): without the rule, the IPC has that many more.
+    monkeypatch.setattr(ct_segmentation, "CUT_BASE_MM", 0.0)
+    without = bone_surface(volume, segmentation)
+    assert surface.left_out_base > 50 and without.left_out_base == 0
+    assert len(without.points) - len(points) == surface.left_out_base
     # Every point of the shaft's surface 5 mm or more from the wire, and 8 mm from the volume's ends, has an IPC point
     # within 0.5 mm.
     angles, heights = np.meshgrid(np.linspace(0.0, 2.0 * np.pi, 180), np.linspace(-12.0, 12.0, 45))

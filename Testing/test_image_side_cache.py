@@ -54,6 +54,7 @@ def assert_same_result(read, made):
         np.testing.assert_array_equal(read.segmentation.body, made.segmentation.body)
     np.testing.assert_array_equal(read.segmentation.labelmap(), made.segmentation.labelmap())
     assert read.surface.left_out_body == made.surface.left_out_body
+    assert read.surface.left_out_base == made.surface.left_out_base
     np.testing.assert_array_equal(read.surface.points, made.surface.points)
     np.testing.assert_array_equal(read.surface.triangles, made.surface.triangles)
     assert read.surface.left_out == made.surface.left_out

@@ -139,6 +139,11 @@ def run(arguments):
             if segmentation.body is not None
             else ""
         )
+        + (
+            f"; {image.surface.left_out_base:,} IPC points round the base of a wire or stub cut off it left out"
+            if image.surface.left_out_base
+            else ""
+        )
     )
     if arguments.markers is not None:
         print(f"marker centres   {len(image.usable)} of {len(tool)} usable -> {arguments.markers}")
@@ -161,6 +166,7 @@ def run(arguments):
                 "label": recognition.label,
                 "reference_body_cut_off": segmentation.body is not None,
                 "ipc_points_left_out_next_to_the_reference_body": image.surface.left_out_body,
+                "ipc_points_left_out_round_the_base_of_parts_cut_off": image.surface.left_out_base,
             },
             "ipc_points_left_out_near_metal": image.surface.left_out,
             "warnings": warnings,

@@ -263,7 +263,8 @@ class BoneSurface:
     """The IPC: ``points`` (M, 3) RAS mm, and the iso-surface ``triangles`` (K, 3) over them.
 
     ``metal`` is the MetalZone of the CT; ``left_out`` the number of surface points dropped in it;
-    ``left_out_body`` those dropped next to a reference body joined to the bone (a bracket).
+    ``left_out_body`` those dropped next to a reference body joined to the bone (a bracket); ``left_out_base`` those
+    dropped round the base of a wire or a bracket's stub cut off the bone (``CUT_BASE_MM``).
     """
 
     points: np.ndarray
@@ -271,6 +272,7 @@ class BoneSurface:
     metal: object = None
     left_out: int = 0
     left_out_body: int = 0
+    left_out_base: int = 0
 
 
 def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", leave_out_metal=True, own_half_max=None):
@@ -458,6 +460,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))
     if len(vertices_ijk) == 0:
         raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
+    at_base = np.zeros(len(vertices_ijk), dtype=bool)
     if cut_off.any():
         at_base = _within(cut_off, vertices_ijk, volume.spacing, CUT_BASE_MM)
         if at_base.any():
@@ -490,6 +493,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         metal=metal,
         left_out=int(spoilt.sum()),
         left_out_body=int(by_body.sum()),
+        left_out_base=int(at_base.sum()),
     )
 
 

@@ -107,6 +107,7 @@ def _arrays(result):
         "surface_points": surface.points,
         "surface_triangles": surface.triangles,
         "surface_left_out": np.int64(surface.left_out),
+        "surface_left_out_base": np.int64(surface.left_out_base),
         "has_metal": np.bool_(surface.metal is not None),
         "warnings": np.array(result.warnings, dtype=str).reshape(-1),
     }
@@ -164,7 +165,7 @@ def _result(stored, shape):
         values["centre"] = None if values["centre"].ndim == 0 else values["centre"]
         metal = MetalZone(**values)
     left_out, left_out_body = int(stored["surface_left_out"]), int(stored["surface_left_out_body"])
-    surface = BoneSurface(points, triangles, metal, left_out, left_out_body)
+    surface = BoneSurface(points, triangles, metal, left_out, left_out_body, int(stored["surface_left_out_base"]))
     columns = {name: stored[f"sphere_{name}"] for name in _SPHERE_FIELDS}
     spheres = tuple(
         MarkerSphere(**{name: _sphere_value(name, column[row]) for name, column in columns.items()})
