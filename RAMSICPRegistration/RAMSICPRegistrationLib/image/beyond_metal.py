@@ -7,12 +7,12 @@ in its own slices, but the hub reaches past both: family seed 18015, 31 IPC poin
 off the bone, 3.0-5.6 mm from the metal and a slice past its last.
 
 Bone has no such part. Without the metal and its blurred edge (``METAL_EDGE_MM`` round every voxel brighter than
-``METAL_HU``), the bone's object falls apart into the bone and what the metal joined to it; each piece that was
-joined to the rest through the metal, and is smaller than ``SHARE`` of the largest piece, is not the bone's: its
-surface goes from the IPC with the metal zone's (``ct_segmentation.bone_surface``). A nail or a screw through a bone
-leaves it whole round the metal's edge; a nail across a fracture joins two large pieces, both of which stay. The
-pieces stay in the bone's mask: a piece of a bone's inside that a pin's edge cuts off has no surface of its own, and
-taken out of the mask it would leave walls inside the bone.
+``METAL_HU``), the bone's object falls apart into the bone and what the metal joined to it; each piece within
+``REACH_MM`` of the metal that was joined to the rest through it, and is smaller than ``SHARE`` of the rest of the
+object, is not the bone's: its surface goes from the IPC with the metal zone's (``ct_segmentation.bone_surface``). A
+nail or a screw through a bone leaves it whole round the metal's edge; a nail across a fracture joins two large
+pieces, both of which stay. The pieces stay in the bone's mask: a piece of a bone's inside that a pin's edge cuts off
+has no surface of its own, and taken out of the mask it would leave walls inside the bone.
 """
 
 import logging
@@ -76,7 +76,7 @@ def beyond_metal(mask, image, spacing):
     beyond = none
     beyond[region] = labelled(pieces, chosen)
     logger.info(
-        "%d part(s) joined to the bone only through metal (%.0f mm^3) left out",
+        "%d part(s) joined to the bone only through metal (%.0f mm^3): their surface left out",
         len(chosen),
         beyond.sum() * np.prod(spacing),
     )
