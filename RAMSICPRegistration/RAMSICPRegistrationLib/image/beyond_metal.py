@@ -65,13 +65,9 @@ def beyond_metal(mask, image, spacing):
     # The pieces that touch the object's voxels in the metal's edge: the metal joined them to it.
     joined = np.zeros(count + 1, dtype=bool)
     joined[np.unique(pieces[dilate(object_here & edge) & (pieces > 0)])] = True
-    total = int(mask.sum())
-    chosen = [
-        label
-        for label in np.flatnonzero(joined & ~going_on)
-        if label > 0 and sizes[label] < SHARE * (total - sizes[label])
-    ]
-    if not chosen:
+    small = sizes < SHARE * (int(mask.sum()) - sizes)
+    chosen = np.flatnonzero(joined & ~going_on & small)  # never the background: it touches no voxel of the edge
+    if len(chosen) == 0:
         return none
     beyond = none
     beyond[region] = labelled(pieces, chosen)

@@ -352,7 +352,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # What a metal bracket joins to the bone: its surface goes with the metal's (below). It stays in the mask: a piece
     # of the bone's inside that a pin's edge cuts off is no outside (family seed 25054: wiped, it left 10 IPC points
     # on its walls 6-16 mm inside the bone).
-    joined = beyond_metal(mask, image, volume.spacing)
+    joined = beyond_metal(mask, image, volume.spacing) if leave_out_metal else None
     wire = wires_on_bone(mask, volume.spacing, own=bone[box])  # a wire joined to the bone: another object
     if wire.any():
         mask, other = mask & ~wire, other | wire
@@ -456,7 +456,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     origin = segmentation.origin + low  # the crop's first voxel in the CT
     metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin)
     spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
-    if leave_out_metal and joined.any():
+    if joined is not None and joined.any():
         spoilt |= _within(joined, vertices_ijk, volume.spacing, JOINED_MARGIN_VOXELS * float(volume.spacing.max()))
     if spoilt.any():
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
