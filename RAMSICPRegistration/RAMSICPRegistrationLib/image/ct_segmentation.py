@@ -772,7 +772,8 @@ def _without_cortex(original, vertices, down, level, spacing, contrast):
     what the bone touches, ``_surface_contrast``) has no cortex under it either, whatever lies beyond. ``corner``:
     the points not ``dim`` where that rise is less than CORNER_PEAK_SHARE and what lies beyond is brighter by
     CORNER_BRIGHTER_HU than what the bone touches: where a dim part meets the bone; and its edge, the points below
-    CORNER_EDGE_SHARE within CORNER_EDGE_MM of the ``dim`` or ``corner`` ones that touch something as bright.
+    CORNER_EDGE_SHARE within CORNER_EDGE_MM of the ``dim`` or ``corner`` ones and within CORNER_EDGE_FREE_MM of the
+    surface with a cortex under it (at or above that share), that touch something as bright.
 
     The whole profile is read only where the CT UNDER_MM under the point is no brighter than the peak of a point
     without a cortex can be, whatever lies beyond it (the CT's lowest value at worst): a cortex under the point rules
