@@ -782,7 +782,8 @@ def _without_cortex(original, vertices, down, level, spacing, contrast):
     under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
     cortex_rise = cortex - level
     dim = under < level + DIM_PEAK_SHARE * cortex_rise
-    corner = (under < level + CORNER_PEAK_SHARE * cortex_rise) & ~dim
+    below_corner = under < level + CORNER_PEAK_SHARE * cortex_rise
+    corner = below_corner & ~dim
     if corner.any():  # ... where the point touches something brighter than what the bone's surface touches
         candidates = np.nonzero(corner)[0]
         corner[candidates] = _beyond(original, vertices[candidates], down[candidates], spacing) > (
@@ -796,12 +797,14 @@ def _without_cortex(original, vertices, down, level, spacing, contrast):
         dim[maybe] = (level > beyond) & (level - beyond > NO_CORTEX_SHARE * (peak - beyond))
     corner &= ~dim
     # The corner's edge: between the corner and the bone's surface with its cortex under it (not under the middle
-    # of a wide dim part, whose surface is moved to its own half-max: ``_to_own_half_max``).
+    # of a wide dim part, whose surface is moved to its own half-max: ``_to_own_half_max``). Only the points from
+    # CORNER_PEAK_SHARE up: below it, the corner's check has read what lies beyond them already.
     below = under < level + CORNER_EDGE_SHARE * cortex_rise
-    free = ~(below | dim | corner)
-    edge = np.nonzero(below & ~(dim | corner))[0]
-    if len(edge) and (dim | corner).any() and free.any():
-        edge = edge[_near(vertices[edge], vertices[dim | corner], spacing, CORNER_EDGE_MM)]
+    taken = dim | corner
+    free = ~(below | taken)
+    edge = np.nonzero(below & ~below_corner & ~dim)[0]
+    if len(edge) and taken.any() and free.any():
+        edge = edge[_near(vertices[edge], vertices[taken], spacing, CORNER_EDGE_MM)]
         if len(edge):
             edge = edge[_near(vertices[edge], vertices[free], spacing, CORNER_EDGE_FREE_MM)]
         if len(edge):
