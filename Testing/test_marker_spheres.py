@@ -183,7 +183,7 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     # The status rules on a sphere well inside a CT of air: seen over 80 % (a thick post hides the rest) it is clean
     # when its edge fits within CLEAN_FIT_MM, partial when it fits worse (a post's blur moved it); seen all round,
     # it is partial when a fifth of its rays find air inside its radius (a cap missing).
-    from RAMSICPRegistrationLib.image.marker_spheres import CLEAN_FIT_MM, _status
+    from RAMSICPRegistrationLib.image.marker_spheres import CLEAN_FIT_MM, HIDDEN_FIT_MM, HIDDEN_RADIUS_MM, _status
 
     volume = analytic_volume([], size_mm=(40.0, 40.0, 40.0), background_hu=-1000.0, noise_hu=0.0)
     centre = volume.ijk_to_ras_points((np.array(volume.voxels.shape) - 1)[None] / 2.0)[0]
@@ -191,6 +191,11 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     status, note = _status(volume, centre, 5.75, 5.7, 2 * CLEAN_FIT_MM, 0.8, 0.0)
     assert status == "partial" and "80 % of its surface" in note
     assert _status(volume, centre, 5.75, 5.7, 0.02, 0.7, 0.0)[0] == "partial"  # too little seen, however clean
+    # An RMS of up to HIDDEN_FIT_MM (noise, partial volume) is clean enough when the fitted radius is the nominal's
+    # within HIDDEN_RADIUS_MM; a radius 0.2 mm short says the edge is bent (a cap damaged, streaks): partial.
+    assert _status(volume, centre, 5.75, 5.75 - 0.9 * HIDDEN_RADIUS_MM, 0.9 * HIDDEN_FIT_MM, 0.8, 0.0)[0] == "ok"
+    assert _status(volume, centre, 5.75, 5.55, 0.9 * HIDDEN_FIT_MM, 0.8, 0.0)[0] == "partial"
+    assert _status(volume, centre, 5.75, 5.75, 1.1 * HIDDEN_FIT_MM, 0.8, 0.0)[0] == "partial"
     status, note = _status(volume, centre, 5.75, 5.7, 0.02, 1.0, 0.0, missing=0.2)
     assert status == "partial" and "20 % of its rays find air" in note
     # A tenth of its edges off it (a frame it is sunk into, streaks): clean when the rest fits it within CLEAN_FIT_MM

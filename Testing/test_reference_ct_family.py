@@ -519,6 +519,19 @@ def test_a_cap_seen_through_the_hole_of_a_plate_does_not_pull_its_sphere_off_cen
     assert score.ipc_on_bone == score.ipc_points > 5000
 
 
+def test_spheres_as_bright_as_their_thick_posts_are_usable_when_their_fit_is_round():
+    """Family seed 23015 (full profile, a fresh batch): three visible spheres of 238 HU on 5.7 mm posts of 243 HU,
+    with a ramp of partial volume. The posts hide 16-18 % of each sphere, and the edge fits it at 0.08-0.10 mm RMS:
+    they were flagged partial (a fit that clean was needed at 0.06 mm), and the CT gave no usable sphere, though
+    each centre was 0.06-0.07 mm off. Their fitted radius is the nominal's within 0.07 mm: usable now."""
+    volume, truth = make_family_ct(23015, "full")
+    image, score = run(volume, truth)
+    assert score.visible == 3 and score.found == 3 and score.false == 0
+    for sphere in image.usable:
+        assert sphere.coverage < 0.85 and sphere.residual_mm > 0.06  # taken by the round fit, not the old rule
+        assert np.linalg.norm(sphere.centre - truth.marker_centres[sphere.number - 1]) < 0.1
+
+
 def test_two_spots_of_the_body_at_a_tool_distance_by_chance_do_not_hold_the_bone_to_it():
     """Family seed 19089 (full profile, first met in a fresh batch): no marker sphere is in view clean (three cut,
     one of 210 HU sunk into a 1,146 HU star frame), but a 10.8 mm bracket's end, 7.5 mm from a tibia it is inserted
