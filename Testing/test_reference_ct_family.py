@@ -522,8 +522,8 @@ def test_a_cap_seen_through_the_hole_of_a_plate_does_not_pull_its_sphere_off_cen
 def test_spheres_as_bright_as_their_thick_posts_are_usable_when_their_fit_is_round():
     """Family seed 23015 (full profile, a fresh batch): three visible spheres of 238 HU on 5.7 mm posts of 243 HU,
     with a ramp of partial volume. The posts hide 16-18 % of each sphere, and the edge fits it at 0.08-0.10 mm RMS:
-    they were flagged partial (a fit that clean was needed at 0.06 mm), and the CT gave no usable sphere, though
-    each centre was 0.06-0.07 mm off. Their fitted radius is the nominal's within 0.07 mm: usable now."""
+    they were flagged partial (seen under 85 %, a sphere needed an RMS within 0.06 mm), and the CT gave no usable
+    sphere, though each centre was 0.06-0.07 mm off. Their fitted radius is the nominal's within 0.07 mm: usable now."""
     volume, truth = make_family_ct(23015, "full")
     image, score = run(volume, truth)
     assert score.visible == 3 and score.found == 3 and score.false == 0
