@@ -102,6 +102,17 @@ def _rod_sdf(start, end, radius):
     return sdf
 
 
+def _off_tube(points, outer=8.0):
+    """(N,) mm: how far the points (N, 3) lie off the outer surface of a tube round the z axis through CENTRE."""
+    return np.abs(np.linalg.norm(points[:, :2] - CENTRE[:2], axis=1) - outer)
+
+
+def _share_kept(points, bare_points, spacing):
+    """The share of ``bare_points`` (the IPC of the same CT without the added part) that ``points`` still holds,
+    within half the finest voxel (``spacing`` (3,) mm)."""
+    return np.mean(cKDTree(points).query(bare_points)[0] < 0.5 * spacing.min())
+
+
 @pytest.mark.parametrize("rod_hu", [280.0, 400.0, 600.0])
 @pytest.mark.parametrize("along, radius", [((0.0, 0.0, 10.0), 3.0), ((14.0, 0.0, 0.0), 4.0)])
 def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along, radius):
@@ -125,15 +136,14 @@ def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along,
     bare = analytic_volume(tube, size_mm=size, noise_hu=10.0)
     volume = analytic_volume([rod, *tube], size_mm=size, noise_hu=10.0)
     points = bone_surface(volume, segment_bone(volume)).points
-    off_tube = np.abs(np.linalg.norm(points[:, :2] - CENTRE[:2], axis=1) - 8.0)
+    off_tube = _off_tube(points)
     assert off_tube.max() < 2.0 and np.mean(off_tube > 0.5) < 0.03
     if rod_hu >= 400.0:
         assert off_tube.max() < 0.55  # 0.47-0.51 mm measured
     bare_points = bone_surface(bare, segment_bone(bare)).points
     from_rod = np.linalg.norm(np.cross(bare_points - axis, np.asarray(along) / np.linalg.norm(along)), axis=1)
     away = from_rod > radius + 3.0  # past the corner
-    kept = cKDTree(points).query(bare_points[away])[0] < 0.5 * volume.spacing.min()
-    assert kept.mean() > 0.99
+    assert _share_kept(points, bare_points[away], volume.spacing) > 0.99
 
 
 @pytest.mark.parametrize("rotation_deg", [0.0, 30.0])
@@ -152,18 +162,13 @@ def test_the_edge_of_the_corner_a_dim_rods_end_makes_with_the_bone_is_left_out(r
     size = (30.0, 44.0, 30.0)
     volume = analytic_volume([rod, *tube], size_mm=size, noise_hu=20.0, blur_mm=0.5, rotation_deg=rotation_deg)
     bare = analytic_volume(tube, size_mm=size, noise_hu=20.0, blur_mm=0.5, rotation_deg=rotation_deg)
-
-    def off_tube(points):
-        return np.abs(np.linalg.norm(points[:, :2] - CENTRE[:2], axis=1) - 8.0)
-
     points = bone_surface(volume, segment_bone(volume)).points
-    assert off_tube(points).max() < 0.5
+    assert _off_tube(points).max() < 0.5
     bare_points = bone_surface(bare, segment_bone(bare)).points
     away = rod[0](bare_points) > 3.0  # 3 mm or more from the rod
-    kept = cKDTree(points).query(bare_points[away])[0] < 0.5 * volume.spacing.min()
-    assert kept.mean() > 0.99
+    assert _share_kept(points, bare_points[away], volume.spacing) > 0.99
     monkeypatch.setattr(ct_segmentation, "CORNER_EDGE_MM", 0.0)
-    assert off_tube(bone_surface(volume, segment_bone(volume)).points).max() > 0.6
+    assert _off_tube(bone_surface(volume, segment_bone(volume)).points).max() > 0.6
 
 
 def _box_sdf(low, high):
@@ -232,7 +237,7 @@ def test_the_base_of_a_wire_in_the_bone_leaves_no_surface_in_the_ipc(rotation_de
     segmentation = segment_bone(volume)
     surface = bone_surface(volume, segmentation)
     points = surface.points
-    off_shaft = np.abs(np.linalg.norm(points[:, :2] - CENTRE[:2], axis=1) - 9.0)
+    off_shaft = _off_tube(points, outer=9.0)
     assert off_shaft.max() < 0.3
     # The points left out are counted (``ramsicp ipc`` reports them): without the rule, the IPC has that many more.
     monkeypatch.setattr(ct_segmentation, "CUT_BASE_MM", 0.0)
