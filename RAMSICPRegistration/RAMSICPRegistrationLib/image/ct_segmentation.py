@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from .beyond_metal import beyond_metal
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
+from .dim_parts import dim_parts_at_bone, near_dim_parts
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -397,12 +398,12 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
         dim |= _on_a_dim_stub(original, vertices_ijk, down, level, segmentation.threshold_hu, volume.spacing)
     inner = np.zeros(len(vertices_ijk), dtype=bool)
+    bone_and_inside = mask
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
         # made in it): its outside, a little way down the gradient, is still the bone's, or enclosed by it along
         # the grid's lines, or in its envelope with such holes plugged (with voxels that resolve the cortex:
         # coarser ones merge bones a few mm apart).
-        bone_and_inside = mask
         if fine:
             on_edge = _on_ct_edge(segmentation, low, high, volume)
             bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
@@ -422,6 +423,15 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             beside = dim & ~inner
             kept, kept_triangles = _without_vertices(vertices_ijk, triangles, beside)
             inner[~beside] |= _mouths(kept, kept_triangles, inner[~beside], down[~beside], volume.spacing)
+    if contrast is not None and fine:
+        # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
+        # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter
+        # by CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's.
+        contacts = dim_parts_at_bone(segmentation.smoothed, bone_and_inside, low, volume.spacing)
+        near = np.nonzero(near_dim_parts(vertices_ijk + low, contacts, volume.spacing) & ~corner)[0]
+        if len(near):
+            beyond = _beyond(original, vertices_ijk[near], down[near], volume.spacing)
+            corner[near] = beyond > contrast[1] + CORNER_BRIGHTER_HU
     if dim.any():
         logger.info("%d IPC points on a dim part without a cortex under it left out", int(dim.sum()))
     if (inner & ~dim).any():

@@ -10,6 +10,7 @@ through a mask (``VoxelGraph``: shortest paths over each voxel's 26 neighbours).
 """
 
 import itertools
+from functools import partial
 
 import numpy as np
 from scipy import sparse
@@ -88,14 +89,26 @@ def _box_filter(mask, size, combine):
 
 def block_max(image, block):
     """Maxima of ``image`` (I, J, K) over blocks of ``block`` (3,) voxels (the edges' partial blocks dropped), a new
-    array. One axis at a time, the first first: each pass reduces whole contiguous rows, several times faster than
+    array."""
+    return _by_blocks(image, block, np.max)
+
+
+def block_mean(image, block):
+    """Means of ``image`` (I, J, K) over blocks of ``block`` (3,) voxels (the edges' partial blocks dropped), a new
+    float32 array."""
+    return _by_blocks(image.astype(np.float32, copy=False), block, partial(np.mean, dtype=np.float32))
+
+
+def _by_blocks(image, block, reduce):
+    """``reduce`` (np.max, np.mean) of ``image`` over blocks of ``block`` (3,) voxels, the edges' partial blocks
+    dropped. One axis at a time, the first first: each pass reduces whole contiguous rows, several times faster than
     one reduction over three strided axes of a six-dimensional view."""
     shape = np.array(image.shape) // block
     reduced = image[: shape[0] * block[0], : shape[1] * block[1], : shape[2] * block[2]]
     for axis in range(3):
         if block[axis] > 1:
             split = reduced.shape[:axis] + (shape[axis], block[axis]) + reduced.shape[axis + 1 :]
-            reduced = reduced.reshape(split).max(axis=axis + 1)
+            reduced = reduce(reduced.reshape(split), axis=axis + 1)
     return np.array(reduced) if (np.asarray(block) == 1).all() else reduced
 
 
