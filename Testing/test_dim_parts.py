@@ -65,7 +65,7 @@ def test_a_part_lying_on_the_bone_over_a_wide_area_is_soft_tissue_not_a_bracket(
 
 
 def test_a_noisier_ct_needs_a_brighter_part():
-    """With 60 HU of noise in the tissue (its cells' spread about 8 HU), a rod 30 HU above the tissue is no part
+    """With 60 HU of noise in the tissue (its cells' spread about 15 HU), a rod 30 HU above the tissue is no part
     (NOISE_SIGMAS times the spread lifts the bar), a rod 120 HU above it is."""
     assert len(_contacts_mm(*_ct("rod", 70.0, noise_hu=60.0))) == 0
     assert len(_contacts_mm(*_ct("rod", 160.0, noise_hu=60.0))) > 0
