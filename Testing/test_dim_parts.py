@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from RAMSICPRegistrationLib.image.dim_parts import MARGIN_MM, MAX_CONTACT_MM2, dim_parts_at_bone, near_dim_parts
+from RAMSICPRegistrationLib.image.ct_segmentation import _near
+from RAMSICPRegistrationLib.image.dim_parts import MARGIN_MM, MAX_CONTACT_MM2, dim_parts_at_bone
 from RAMSICPRegistrationLib.image.morphology import block_max, block_mean
 
 SPACING = np.array([0.6, 0.6, 0.6])
@@ -77,8 +78,7 @@ def test_points_within_the_margin_of_where_a_part_meets_the_bone_are_near_it():
     inside = (MARGIN_MM - 0.1) / 0.5
     outside = (MARGIN_MM + 0.1) / 0.5
     vertices = np.array([[10.0 + inside, 10.0, 10.0], [10.0, 10.0 + outside, 10.0], [10.0, 10.0, 10.0]])
-    assert near_dim_parts(vertices, contacts, spacing).tolist() == [True, False, True]
-    assert near_dim_parts(vertices, np.empty((0, 3)), spacing).tolist() == [False, False, False]
+    assert _near(vertices, contacts, spacing, MARGIN_MM).tolist() == [True, False, True]
 
 
 def test_block_means_and_maxima_are_over_whole_blocks():

@@ -21,10 +21,10 @@ from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from . import dim_parts
 from .beyond_metal import beyond_metal
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
-from .dim_parts import dim_parts_at_bone, near_dim_parts
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -427,8 +427,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
         # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter
         # by CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's.
-        contacts = dim_parts_at_bone(segmentation.smoothed, bone_and_inside, low, volume.spacing)
-        near = np.nonzero(near_dim_parts(vertices_ijk + low, contacts, volume.spacing) & ~corner)[0]
+        contacts = dim_parts.dim_parts_at_bone(segmentation.smoothed, bone_and_inside, low, volume.spacing)
+        near = np.zeros(len(vertices_ijk), dtype=bool)
+        if len(contacts):
+            near = _near(vertices_ijk + low, contacts, volume.spacing, dim_parts.MARGIN_MM)
+        near = np.nonzero(near & ~corner)[0]
         if len(near):
             beyond = _beyond(original, vertices_ijk[near], down[near], volume.spacing)
             corner[near] = beyond > contrast[1] + CORNER_BRIGHTER_HU

@@ -20,7 +20,6 @@ import logging
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from .morphology import block_max, block_mean
 
@@ -41,7 +40,8 @@ ALIKE_HU = 200.0
 STICKS_OUT_CELLS = 1
 #: ... and meets the blur over at most this (mm^2, its cells there times a cell's face).
 MAX_CONTACT_MM2 = 400.0
-#: IPC points within this (mm) of a part's cells next to the blur are looked at (the corner's, when they touch it).
+#: IPC points within this (mm) of a part's cells next to the blur are looked at (the corner's, when they touch it:
+#: ``ct_segmentation.bone_surface``).
 MARGIN_MM = 6.0
 
 _CUBE = np.ones((3, 3, 3), dtype=bool)
@@ -102,13 +102,3 @@ def dim_parts_at_bone(smoothed, bone, bone_low, spacing):
         len(cells),
     )
     return cells * block + (block - 1) / 2.0 + low
-
-
-def near_dim_parts(vertices_ijk, contacts_ijk, spacing):
-    """(M,) booleans: the vertices (M, 3) within MARGIN_MM of where dim parts meet the bone (``contacts_ijk`` (N, 3),
-    ``dim_parts_at_bone``), both indices in one grid of ``spacing`` (3,) mm."""
-    if len(contacts_ijk) == 0 or len(vertices_ijk) == 0:
-        return np.zeros(len(vertices_ijk), dtype=bool)
-    spacing = np.asarray(spacing, float)
-    distance, _ = cKDTree(contacts_ijk * spacing).query(vertices_ijk * spacing, distance_upper_bound=MARGIN_MM)
-    return np.isfinite(distance)
