@@ -132,7 +132,7 @@ class BoneRecognition:
     has_cortex: bool = True
 
 
-def recognise_bone(volume, segmentation, spheres):
+def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
     """Recognise the bone among a segmentation's objects (see the module docstring).
 
     Args:
@@ -140,6 +140,11 @@ def recognise_bone(volume, segmentation, spheres):
         segmentation: a BoneSegmentation from ``ct_segmentation.threshold_ct`` (labels and denoised image over
             its box).
         spheres: the marker spheres of the reference body (``MarkerSphere``; their ``centre`` and ``radius_mm``).
+        spheres_sure: False when the spheres are only tied by the tool's distances (``MarkerDetection.tied``: none
+            numbered). A sphere-like spot of the bone's object may be among them (family seed 27033: the round end of
+            a 10.8 mm bracket in a tibia's marrow, at one of the tool's distances from two true spheres), and a cut
+            with it as the body's takes the bone for the body: then no cut may leave a piece with a cortex round its
+            inside on the body's side.
 
     Raises:
         ValueError: no object is plausibly bone; the message lists what was found.
@@ -149,23 +154,25 @@ def recognise_bone(volume, segmentation, spheres):
     labels = segmentation.labels[segmentation.labels > 0]  # the objects' voxels: a few % of the box
     census = _Census(np.bincount(labels, minlength=len(slices) + 1), slices, {})
     plain = _body_seeds(volume, segmentation, spheres, census, dim_links=False)
+    unsure = set() if spheres_sure else {label for label, held in plain.items() if held}
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
-        return _recognise(volume, segmentation, plain, census)  # no object the dim parts could reach but the body's
+        # no object the dim parts could reach but the body's
+        return _recognise(volume, segmentation, plain, census, unsure)
     try:
         linked = _body_seeds(volume, segmentation, spheres, census)
         reached = {label for label, held in linked.items() if held and not plain[label]}  # by the dim parts only
-        recognition = _recognise(volume, segmentation, linked, census, reached)
+        recognition = _recognise(volume, segmentation, linked, census, reached | unsure)
     except ValueError:
         # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
         # with the spheres and their posts' feet alone.
-        return _recognise(volume, segmentation, plain, census)
+        return _recognise(volume, segmentation, plain, census, unsure)
     if recognition.has_cortex:
         return recognition
     # Led on to the bone, the dim parts may leave no object with a cortex but a piece of the body (24095: a 145 HU
     # bracket resting on a tibia under 70 HU of noise, its specks above the threshold joined to the bone): the
     # spheres and their posts' feet alone may tell the bone, with its cortex.
     try:
-        alone = _recognise(volume, segmentation, plain, census)
+        alone = _recognise(volume, segmentation, plain, census, unsure)
     except ValueError:  # nothing plausibly bone that way: the first recognition, with its warning
         return recognition
     return alone if alone.has_cortex else recognition
@@ -204,8 +211,9 @@ def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds, census):
 
 def _recognise(volume, segmentation, held, census, reached=()):
     """The recognition, knowing where each object is the body's for sure (``held``: ``_body_seeds``); ``reached``:
-    the objects that only the dim parts lead to (a dim bracket may end in the bone: their cut must leave no
-    bone-like piece on the body's side)."""
+    the objects whose seeds may lie in the bone (those only the dim parts lead to: a dim bracket may end in the
+    bone; those held by spheres only tied by the tool's distances): their cut must leave no bone-like piece on the
+    body's side."""
     voxel_mm3 = float(np.prod(volume.spacing))
     sizes, slices = census.sizes, census.slices
     objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]

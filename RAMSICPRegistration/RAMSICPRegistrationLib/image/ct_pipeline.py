@@ -136,8 +136,9 @@ def _with_bone(volume, segmentation, detection, body_spheres):
     7.5 mm from the bone, and a 10.9 mm frame's, 62.8 mm apart against the tool's 64.3 mm), and such a spot holds
     the bone's core to the body. The IPC must still hold none of them (``spheres_in_surface``, in ``process_ct``);
     when the second look finds no bone either, the first's message is the one raised."""
+    tied_only = detection.pairing is None and bool(detection.tied)
     try:
-        return with_bone(volume, segmentation, body_spheres)
+        return with_bone(volume, segmentation, body_spheres, spheres_sure=not tied_only)
     except ValueError as error:
         if not detection.tied:
             raise

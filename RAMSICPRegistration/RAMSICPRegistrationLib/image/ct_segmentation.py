@@ -159,9 +159,10 @@ def reference_body_spheres(detection):
     return clean if len(clean) >= 3 else []
 
 
-def with_bone(volume, segmentation, spheres):
-    """The segmentation with its bone recognised (``bone_recognition``), knowing the marker spheres found."""
-    recognition = recognise_bone(volume, segmentation, spheres)
+def with_bone(volume, segmentation, spheres, spheres_sure=True):
+    """The segmentation with its bone recognised (``bone_recognition``), knowing the marker spheres found
+    (``spheres_sure``: False when they are only tied by the tool's distances, ``recognise_bone``)."""
+    recognition = recognise_bone(volume, segmentation, spheres, spheres_sure)
     others = tuple(label for label in segmentation.object_labels if label != recognition.label)
     return replace(
         segmentation,
