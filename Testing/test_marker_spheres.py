@@ -236,3 +236,28 @@ def test_clean_spheres_are_paired_first_and_the_posts_feet_do_not_take_markers()
     for number in (1, 2, 3):
         assert np.allclose(numbered[number].centre, centres[number - 1])
     assert [m.number for m in missing] == [4] and np.linalg.norm(missing[0].expected - centres[3]) < 0.01
+
+
+def test_a_pairing_resting_on_spots_that_fit_no_sphere_numbers_no_sphere():
+    # One clean sphere at marker 2 of the tool and two deformed 'spheres' (round ends of bone) at markers 1 and 3:
+    # the tool's distances pair all three exactly, but two of them fit no sphere. No marker may be numbered by them
+    # (family seed 27015 numbered its true marker 2 as marker 4 so). With a partial sphere for one of the deformed
+    # ones, two round spheres pair and the numbering stands.
+    from RAMSICPRegistrationLib.image.marker_spheres import MarkerSphere, _pair_with_tool
+
+    tool = tool_marker_geometry()
+    pose = make_transform(rotation_about_axis(np.array([0.2, 0.9, -0.4]), 1.1), np.array([-30.0, 15.0, 60.0]))
+    centres = apply_transform(pose, tool)
+
+    def sphere(centre, status):
+        return MarkerSphere(centre, 5.7 if status == "ok" else 5.3, 0.03, 0.9, status, 300, 0, "")
+
+    volume = analytic_volume([], spacing=(4.0, 4.0, 4.0), size_mm=(300.0, 300.0, 300.0), background_hu=-1000.0)
+    spheres = [sphere(centres[0], "deformed"), sphere(centres[1], "ok"), sphere(centres[2], "deformed")]
+    ordered, pairing, missing, warnings, _ = _pair_with_tool(volume, spheres, tool, 5.75)
+    assert pairing is None and not any(s.number for s in ordered) and missing == ()
+    assert "fewer than 3 of them at the distances" in warnings[0]
+    spheres[0] = sphere(centres[0], "partial")
+    ordered, pairing, _, _, _ = _pair_with_tool(volume, spheres, tool, 5.75)
+    assert pairing is not None
+    assert {s.number: s.status for s in ordered if s.number} == {1: "partial", 2: "ok", 3: "deformed"}

@@ -30,12 +30,13 @@ spheres, plates the spheres touch, brackets that join the frame to the bone, and
    A candidate whose fit is far from any sphere (radius off by more than ``NOT_A_SPHERE_MM``, or less than
    ``MIN_COVERAGE`` of a surface) is not a marker and is dropped.
 4. **Pairing with the tool** (``core.marker_geometry.pair_by_geometry``): the tool's inter-marker distances choose
-   its markers among the spheres found and number them; a sphere that fits no marker (a spare sphere, a round
-   bone feature) is left unnumbered; a marker not found is located where the others put it
-   (``MarkerDetection.missing``), and said to be inside or outside the field of view. When no sphere pairs, the
-   candidates, and then the spots where the body is a ball thick (``thick_spots``: spheres sunk into a brighter
-   frame), that the tool's distances pair say where the reference body is (``MarkerDetection.tied``, status
-   'hidden': for the bone's recognition only, never usable).
+   its markers among the spheres found and number them (a pairing that holds fewer than ``MIN_ROUND_PAIRED``
+   round spheres, clean or partial, numbers none: spots that fit no sphere cannot number the others); a sphere
+   that fits no marker (a spare sphere, a round bone feature) is left unnumbered; a marker not found is located
+   where the others put it (``MarkerDetection.missing``), and said to be inside or outside the field of view. When
+   no sphere pairs, the candidates, and then the spots where the body is a ball thick (``thick_spots``: spheres
+   sunk into a brighter frame), that the tool's distances pair say where the reference body is
+   (``MarkerDetection.tied``, status 'hidden': for the bone's recognition only, never usable).
 
 Only ``ok`` spheres paired with a marker feed the coarse registration unless the user accepts the others.
 """
@@ -139,6 +140,9 @@ FIELD_OF_VIEW_MARGIN_MM = 0.25
 OUTSIDE_FIELD_OF_VIEW_HU = -1500.0
 #: An unpaired sphere this close (mm) to a missing marker's expected place is that marker, though it fits badly.
 NEAR_EXPECTED_MM = 5.0
+#: A pairing of the tool's markers with spheres that are not all clean holds at least this many round ones (clean or
+#: partial): the numbers of the others rest on spots that fit no sphere.
+MIN_ROUND_PAIRED = 2
 STATUSES = ("ok", "partial", "deformed")
 
 
@@ -708,7 +712,11 @@ def _clean_first_pairing(spheres, tool_markers):
     """``pair_by_geometry`` of the spheres with the tool, the clean ones first: when at least 3 clean spheres pair,
     that pairing stands (its rows those of ``spheres``), though flagged ones would pair more markers: the feet of
     the posts lie in the tool's pattern too, shifted by the posts' length, and fit as flagged spheres. Otherwise all
-    the spheres are paired. Raises ValueError as ``pair_by_geometry`` does."""
+    the spheres are paired, and the pairing stands only when at least MIN_ROUND_PAIRED of the spheres it pairs are
+    round (not deformed): two round ends of bone that fit no sphere (family seed 27015: a flat bone's rim, radius
+    5.3 mm, 0.3 mm RMS off a sphere) lay at the tool's distances from one true sphere, and numbered it as the wrong
+    marker, while the one other true sphere in view was left out. Raises ValueError as ``pair_by_geometry`` does,
+    or when too few round spheres pair."""
     names = {"points_name": "the sphere centres found in the CT", "reference_name": "the reference body"}
     clean = [row for row, sphere in enumerate(spheres) if sphere.status == "ok"]
     if 3 <= len(clean) < len(spheres):
@@ -719,7 +727,14 @@ def _clean_first_pairing(spheres, tool_markers):
         else:
             rows = np.array([clean[i] if i >= 0 else -1 for i in pairing.indices])
             return replace(pairing, indices=rows)
-    return pair_by_geometry([sphere.centre for sphere in spheres], tool_markers, **names)
+    pairing = pair_by_geometry([sphere.centre for sphere in spheres], tool_markers, **names)
+    round_paired = sum(spheres[row].status != "deformed" for row in pairing.indices if row >= 0)
+    if round_paired < MIN_ROUND_PAIRED:
+        raise ValueError(
+            f"the spheres that pair with the reference body are {round_paired} round one(s) and "
+            f"{int((pairing.indices >= 0).sum()) - round_paired} not round"
+        )
+    return pairing
 
 
 def _without_duplicates(spheres, radius):
