@@ -560,6 +560,40 @@ def test_two_spots_of_the_body_at_a_tool_distance_by_chance_do_not_hold_the_bone
     assert score.false == 0 and not image.usable
 
 
+def test_a_bracket_end_in_the_marrow_tied_to_two_true_spheres_does_not_make_the_bone_the_body():
+    """Family seed 27033 (full profile, a fresh batch): a tibia in air with a 10.8 mm, 1,040 HU bracket inserted into
+    its marrow; of the reference body one sphere is in view clean, one damaged, two cut. The bracket's round end in
+    the marrow fits a sphere (radius 5.35 mm, seen over half) at one of the tool's distances from the two true ones:
+    tied with them as the body's, it held the tibia to the body, and the cut kept 1.5 cm^3 of the frame as the bone.
+    The IPC written was 223 points, every one on the reference body, with exit 0. With spheres only tied, a cut that
+    leaves a piece with a cortex round its inside on the body's side is no cut: the recognition looks once more
+    without them, and the IPC is the tibia's."""
+    volume, truth = make_family_ct(27033, "full")
+    image, score = run(volume, truth)
+    assert image is not None and image.pairing is None  # the spheres were tied, not paired
+    assert score.ipc_on_body == 0 and score.ipc_points > 20000
+    assert score.ipc_on_bone == score.ipc_points and score.coverage >= 0.85  # 34,495 points, 91.2 % measured
+    assert score.false == 0 and not image.usable
+
+
+def test_two_round_ends_of_bone_do_not_number_a_true_sphere_as_the_wrong_marker():
+    """Family seed 27015 (full profile, a fresh batch): a flat bone in air with two of the reference body's spheres
+    in view, clean, and two cut off. Two round ends of the bone's rim fit spheres badly (radius 5.3 mm, 0.3 mm RMS:
+    deformed) and lie, with one true sphere, at the tool's distances (FRE 0.28 mm): that pairing numbered the true
+    sphere as marker 4 (it is marker 2), the two ends as markers 2 and 3, and took the bone for the body (refused).
+    A pairing must now hold at least two round spheres: the two true spheres are tied instead, unnumbered, and the
+    IPC is the bone's."""
+    volume, truth = make_family_ct(27015, "full")
+    image, score = run(volume, truth)
+    assert image is not None and image.pairing is None and not image.usable
+    assert score.false == 0 and score.cut_usable == 0
+    clean = [sphere for sphere in image.spheres if sphere.status == "ok"]
+    assert len(clean) == 2 and all(sphere.number == 0 for sphere in clean)
+    assert all(np.linalg.norm(truth.marker_centres - sphere.centre, axis=1).min() < 0.05 for sphere in clean)
+    assert score.ipc_on_body == 0 and score.ipc_points > 10000
+    assert score.ipc_on_bone == score.ipc_points and score.coverage >= 0.8  # 15,392 points, 83.1 % measured
+
+
 def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_a_solid_frame():
     """Family seed 12013 (full profile): a tibia (cortex 725 HU, 3 mm; marrow -54 HU) that the round field of view
     cuts along its length, a steel pin through it, 3 spheres in view. The cells the field of view's edge runs through
