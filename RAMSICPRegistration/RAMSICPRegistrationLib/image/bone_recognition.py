@@ -15,7 +15,10 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    part of it, the opening tells it too: a **solid** part (its rim no brighter than its inside: a frame, a
    bracket) that falls apart from a part with a cortex is the body's, and so is a solid part that the bone's core,
    as the openings shrink, grows far from the bone kept so far (a frame the seeds miss, or thinner than the bracket
-   that joins it: no opening splits it off; with no sphere anywhere, the bone's core alone is grown).
+   that joins it: no opening splits it off; with no sphere anywhere, the bone's core alone is grown). Where the
+   body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a bracket's
+   round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a cortex round
+   its inside on the body's side is no cut.
 3. **Plausibly bone:** at least ``MIN_BONE_MM3`` (cavities filled), at least ``MIN_HALF_THICKNESS_MM`` from its
    surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
