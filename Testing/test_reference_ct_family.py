@@ -546,6 +546,17 @@ def test_spheres_as_bright_as_their_thick_posts_are_usable_when_their_fit_is_rou
         assert np.linalg.norm(sphere.centre - truth.marker_centres[sphere.number - 1]) < 0.1
 
 
+def test_a_flat_bone_the_round_field_of_view_cuts_open_is_not_refused_as_too_thin():
+    """Family seed 28060 (full profile, a fresh batch): a flat bone (two 1.4 mm tables of 991 HU round a 168 HU
+    inside, below the threshold) that the round field of view cuts. Its inside reaches the padding, so it was not
+    filled: 18.5 cm^3 of tables less than 4 mm thick, "too small or thin", and the CT was refused with 56 cm^3 of
+    bone in view. Walled by the padding (the CT's side), its inside is filled and its cortex shows."""
+    volume, truth = make_family_ct(28060, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 10000
+    assert score.ipc_on_bone == score.ipc_points and score.coverage >= 0.7  # 18,118 points, 73.2 % measured
+
+
 def test_two_spots_of_the_body_at_a_tool_distance_by_chance_do_not_hold_the_bone_to_it():
     """Family seed 19089 (full profile, first met in a fresh batch): no marker sphere is in view clean (three cut,
     one of 210 HU sunk into a 1,146 HU star frame), but a 10.8 mm bracket's end, 7.5 mm from a tibia it is inserted

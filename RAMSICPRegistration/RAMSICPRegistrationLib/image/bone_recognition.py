@@ -535,7 +535,8 @@ class _ObjectShape:
             verdict = "bone"
         else:
             verdict = "bone without a cortex"
-        if verdict == "bone without a cortex" and filled is self.filled:
+        thin = verdict == "too small or thin" and volume >= MIN_BONE_MM3
+        if (verdict == "bone without a cortex" or thin) and filled is self.filled:
             walled = self._walled_by_the_padding()
             if walled is not None:
                 return self.verdict(spheres, *walled)
@@ -546,9 +547,11 @@ class _ObjectShape:
         both) taken for the CT's side too, when that gives it a cortex; None otherwise. Where the field of view cuts a
         bone along its length, a layer of such cells (part padding, part CT) joined its marrow to the tissue round
         it: unfilled, its deepest cells were the cortex and a steel pin (+2,487 HU), its rim read -1,850 HU on them,
-        and the tibia was refused as a solid frame (12013). Only a verdict of no cortex is looked at again: as the
-        CT's side everywhere, those cells closed pockets that the cut off the reference body and the bone's surface
-        depend on (16002, 16090)."""
+        and the tibia was refused as a solid frame (12013); a flat bone's inside below the threshold, opened so, left
+        its two tables too thin for a bone (28060: 18.5 cm^3 under 4 mm thick, refused with 56 cm^3 of bone in view).
+        Only a verdict of no cortex, or too thin for an object large enough, is looked at again: as the CT's side
+        everywhere, those cells closed pockets that the cut off the reference body and the bone's surface depend on
+        (16002, 16090)."""
         if not self._padding.any():
             return None
         padding = self._padding | (dilate(self._padding) & dilate(self.mask))
