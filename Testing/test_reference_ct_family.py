@@ -587,6 +587,19 @@ def test_a_bracket_end_in_the_marrow_tied_to_two_true_spheres_does_not_make_the_
     assert score.false == 0 and not image.usable
 
 
+def test_a_spot_of_the_bone_tied_to_a_true_sphere_costs_the_bone_only_that_spot():
+    """Family seed 25005 (full profile): spheres sunk into an 11 mm ring frame, one cut; a spot of a flat bone at the
+    field of view's edge fits a sphere (5.07 mm, partial) at one of the tool's distances from a true one, and both
+    are tied as the body's. The cut round that spot keeps the rest of the bone. Forbidding any bone-like piece on
+    the body's side (as for 27033) threw that cut away, and the bone, taken whole, held the spot's "sphere": refused.
+    With tied spheres, only a bone-like piece larger than the bone kept undoes the cut."""
+    volume, truth = make_family_ct(25005, "full")
+    image, score = run(volume, truth)
+    assert image is not None and image.pairing is None and image.segmentation.body is not None
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 20000  # 34,442 measured
+    assert score.coverage >= 0.45  # 50.6 % measured: the bone is cut by the field of view
+
+
 def test_two_round_ends_of_bone_do_not_number_a_true_sphere_as_the_wrong_marker():
     """Family seed 27015 (full profile, a fresh batch): a flat bone in air with two of the reference body's spheres
     in view, clean, and two cut off. Two round ends of the bone's rim fit spheres badly (radius 5.3 mm, 0.3 mm RMS:

@@ -18,7 +18,7 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    that joins it: no opening splits it off; with no sphere anywhere, the bone's core alone is grown). Where the
    body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a bracket's
    round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a cortex round
-   its inside on the body's side is no cut.
+   its inside on the body's side (for tied spheres: larger than the bone kept) is no cut.
 3. **Plausibly bone:** at least ``MIN_BONE_MM3`` (cavities filled), at least ``MIN_HALF_THICKNESS_MM`` from its
    surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
@@ -147,7 +147,8 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
             numbered). A sphere-like spot of the bone's object may be among them (family seed 27033: the round end of
             a 10.8 mm bracket in a tibia's marrow, at one of the tool's distances from two true spheres), and a cut
             with it as the body's takes the bone for the body: then no cut may leave a piece with a cortex round its
-            inside on the body's side.
+            inside on the body's side larger than the bone it keeps (a spot of the bone tied by chance costs the bone
+            only the piece round it: 25005).
 
     Raises:
         ValueError: no object is plausibly bone; the message lists what was found.
@@ -160,22 +161,22 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
     unsure = set() if spheres_sure else {label for label, held in plain.items() if held}
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
         # no object the dim parts could reach but the body's
-        return _recognise(volume, segmentation, plain, census, unsure)
+        return _recognise(volume, segmentation, plain, census, unsure=unsure)
     try:
         linked = _body_seeds(volume, segmentation, spheres, census)
         reached = {label for label, held in linked.items() if held and not plain[label]}  # by the dim parts only
-        recognition = _recognise(volume, segmentation, linked, census, reached | unsure)
+        recognition = _recognise(volume, segmentation, linked, census, reached, unsure)
     except ValueError:
         # The dim parts may have led on through soft tissue to the bone (a dim bracket ending in it): once more
         # with the spheres and their posts' feet alone.
-        return _recognise(volume, segmentation, plain, census, unsure)
+        return _recognise(volume, segmentation, plain, census, unsure=unsure)
     if recognition.has_cortex:
         return recognition
     # Led on to the bone, the dim parts may leave no object with a cortex but a piece of the body (24095: a 145 HU
     # bracket resting on a tibia under 70 HU of noise, its specks above the threshold joined to the bone): the
     # spheres and their posts' feet alone may tell the bone, with its cortex.
     try:
-        alone = _recognise(volume, segmentation, plain, census, unsure)
+        alone = _recognise(volume, segmentation, plain, census, unsure=unsure)
     except ValueError:  # nothing plausibly bone that way: the first recognition, with its warning
         return recognition
     return alone if alone.has_cortex else recognition
@@ -212,11 +213,11 @@ def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds, census):
     return False
 
 
-def _recognise(volume, segmentation, held, census, reached=()):
-    """The recognition, knowing where each object is the body's for sure (``held``: ``_body_seeds``); ``reached``:
-    the objects whose seeds may lie in the bone (those only the dim parts lead to: a dim bracket may end in the
-    bone; those held by spheres only tied by the tool's distances): their cut must leave no bone-like piece on the
-    body's side."""
+def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
+    """The recognition, knowing where each object is the body's (``held``: ``_body_seeds``); ``reached``: the
+    objects only the dim parts lead to (a dim bracket may end in the bone): their cut must leave no bone-like piece
+    on the body's side; ``unsure``: those held by spheres only tied by the tool's distances (one may be a spot of the
+    bone): their cut must leave none larger than the bone it keeps."""
     voxel_mm3 = float(np.prod(volume.spacing))
     sizes, slices = census.sizes, census.slices
     objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]
@@ -243,9 +244,10 @@ def _recognise(volume, segmentation, held, census, reached=()):
             # The body's solid parts (a frame the spheres' seeds do not reach) are the body's too, unless with them
             # no bone is left (a solid bracket resting on the bone: its core's reach takes in the bone's).
             solid = shape.solid_parts()
-            verdict, bone = shape.cut_off_body(held[label] + solid, no_bone_on_body=label in reached)
+            guard = {"no_bone_on_body": label in reached, "no_more_bone_on_body": label in unsure}
+            verdict, bone = shape.cut_off_body(held[label] + solid, **guard)
             if solid and bone is None:
-                verdict, bone = shape.cut_off_body(held[label], no_bone_on_body=label in reached)
+                verdict, bone = shape.cut_off_body(held[label], **guard)
         else:
             verdict, bone = shape.verdict(0), None
             solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
@@ -653,12 +655,13 @@ class _ObjectShape:
         inside = np.median(self.mean_hu[self._inside(cells, depth)])
         return inside <= self._rim_hu(self._rim(bone, self._depth_of(bone))) - CORTEX_CONTRAST_HU
 
-    def cut_off_body(self, seeds, no_bone_on_body=False):
+    def cut_off_body(self, seeds, no_bone_on_body=False, no_more_bone_on_body=False):
         """(ObjectVerdict, _Cut or None): the bone's part of an object that is the reference body's at ``seeds``
         ([(point, reach mm)]: its spheres, the feet of its posts), cut off where a rod leaves it (see the module
         docstring), or the verdict 'reference body' when no bone is in it (or, with ``no_bone_on_body``, when the
-        body's side would hold a piece with a cortex). With no ``seeds`` (no sphere anywhere), only the solid parts
-        the bone's core grows are the body's; without one, there is no cut (None)."""
+        body's side would hold a piece with a cortex; with ``no_more_bone_on_body``, such a piece larger than the
+        bone kept). With no ``seeds`` (no sphere anywhere), only the solid parts the bone's core grows are the
+        body's; without one, there is no cut (None)."""
         centres = np.array([point for point, _ in seeds]).reshape(-1, 3)
         reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
         cells = self._cell_centres_ras()
@@ -722,9 +725,10 @@ class _ObjectShape:
         verdict = self.verdict(0, bone, self._depth_of(bone))
         if not _bone_cut_off(verdict):
             return self.verdict(len(seeds)), None
-        if no_bone_on_body and self._bone_like(rest & ~bone, bone):
-            # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), and the cut
-            # went through the bone.
+        body = rest & ~bone
+        if (no_bone_on_body or (no_more_bone_on_body and body.sum() > bone.sum())) and self._bone_like(body, bone):
+            # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), or a seed
+            # tied by the tool's distances lay in it, and the cut went through the bone.
             return self.verdict(len(seeds)), None
         logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
         # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell

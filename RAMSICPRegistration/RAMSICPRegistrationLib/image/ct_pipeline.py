@@ -136,7 +136,8 @@ def _with_bone(volume, segmentation, detection, body_spheres):
     7.5 mm from the bone, and a 10.9 mm frame's, 62.8 mm apart against the tool's 64.3 mm), and such a spot holds
     the bone's core to the body. Such a spot can also lie in the bone itself (27033: a bracket's round end in a
     tibia's marrow): with tied spheres, no cut may leave a piece with a cortex round its inside on the body's side
-    (``recognise_bone``'s ``spheres_sure``), so that the first look finds no bone rather than a piece of the frame.
+    larger than the bone it keeps (``recognise_bone``'s ``spheres_sure``), so that the first look finds no bone
+    rather than a piece of the frame.
     The IPC must still hold none of them (``spheres_in_surface``, in ``process_ct``); when the second look finds no
     bone either, the first's message is the one raised."""
     tied_only = detection.pairing is None and bool(detection.tied)
