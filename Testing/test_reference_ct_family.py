@@ -577,8 +577,8 @@ def test_a_bracket_end_in_the_marrow_tied_to_two_true_spheres_does_not_make_the_
     the marrow fits a sphere (radius 5.35 mm, seen over half) at one of the tool's distances from the two true ones:
     tied with them as the body's, it held the tibia to the body, and the cut kept 1.5 cm^3 of the frame as the bone.
     The IPC written was 223 points, every one on the reference body, with exit 0. With spheres only tied, a cut that
-    leaves a piece with a cortex round its inside on the body's side is no cut: the recognition looks once more
-    without them, and the IPC is the tibia's."""
+    leaves on the body's side a piece with a cortex round its inside, larger than the bone it keeps, is no cut: the
+    recognition looks once more without them, and the IPC is the tibia's."""
     volume, truth = make_family_ct(27033, "full")
     image, score = run(volume, truth)
     assert image is not None and image.pairing is None  # the spheres were tied, not paired
