@@ -137,12 +137,10 @@ def _with_bone(volume, segmentation, detection, body_spheres):
     the bone's core to the body. Such a spot can also lie in the bone itself (27033: a bracket's round end in a
     tibia's marrow): with tied spheres, no cut may leave a piece with a cortex round its inside on the body's side
     larger than the bone it keeps (``recognise_bone``'s ``spheres_sure``), so that the first look finds no bone
-    rather than a piece of the frame.
-    The IPC must still hold none of them (``spheres_in_surface``, in ``process_ct``); when the second look finds no
-    bone either, the first's message is the one raised."""
-    tied_only = detection.pairing is None and bool(detection.tied)
-    try:
-        return with_bone(volume, segmentation, body_spheres, spheres_sure=not tied_only)
+    rather than a piece of the frame. The IPC must still hold none of them (``spheres_in_surface``, in
+    ``process_ct``); when the second look finds no bone either, the first's message is the one raised."""
+    try:  # (spheres are tied only when none could be paired: ``detect_marker_spheres``)
+        return with_bone(volume, segmentation, body_spheres, spheres_sure=not detection.tied)
     except ValueError as error:
         if not detection.tied:
             raise
