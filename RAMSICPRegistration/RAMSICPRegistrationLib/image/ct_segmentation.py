@@ -32,6 +32,7 @@ from .marker_spheres import detect_marker_spheres
 from .metal import METAL_EDGE_MM, find_metal_zone
 from .morphology import all_behind, any_ahead, any_behind, bounding_box, dilate, erode, labelled, open_by_cube
 from .parallel import in_parallel, in_slabs
+from .rod_stub import rod_stub
 from .thin_appendages import wires_on_bone
 
 logger = logging.getLogger(__name__)
@@ -361,8 +362,15 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     cut_off = wire  # the parts cut off the bone's object: their base stays with it (``CUT_BASE_MM``)
     line = None
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
-        line = bracket_line_beyond(mask, segmentation.body, low, volume.spacing, segmentation.smoothed)
-        stub = bracket_stub(mask, segmentation.body[box], volume.spacing)
+        # A long stub (the cut went through the bracket far from the bone) is the body's before its line is read:
+        # the line then runs from the bracket's true end into the bone.
+        rod = rod_stub(mask, segmentation.body[box], volume.spacing, segmentation.smoothed[box])
+        body = segmentation.body
+        if rod.any():
+            body = body.copy()
+            body[box] |= rod
+        line = bracket_line_beyond(mask & ~rod, body, low, volume.spacing, segmentation.smoothed)
+        stub = bracket_stub(mask, segmentation.body[box], volume.spacing) | rod
         if stub.any():
             mask, other = mask & ~stub, other | stub
             cut_off = cut_off | stub
