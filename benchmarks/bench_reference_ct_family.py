@@ -12,7 +12,7 @@ side runs on it with the drawn tool's geometry, and the result is scored against
   those rightly refused (less bone in the field of view than the smallest object taken for bone, 1.5 cm^3).
 
 Rows by kind of CT (bone, bracket, partial-volume model) show where the misses are. Run:
-python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full]
+python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full] [--brackets wide]
 """
 
 import argparse
@@ -25,13 +25,17 @@ import numpy as np
 
 from RAMSICPRegistrationLib.image.ct_pipeline import NoBoneSurface, process_ct
 from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
-from RAMSICPRegistrationLib.simulation.reference_ct_family import make_family_ct, score_image_side
+from RAMSICPRegistrationLib.simulation.reference_ct_family import (
+    make_family_ct,
+    score_image_side,
+    wide_bracket_overrides,
+)
 
 FIELDS = ("visible", "found", "false", "cut", "cut_usable", "ipc_points", "ipc_on_bone", "ipc_on_body", "unpairable")
 
 
-def run_seed(seed, profile):
-    volume, truth = make_family_ct(seed, profile)
+def run_seed(seed, profile, wide=False):
+    volume, truth = make_family_ct(seed, profile, overrides=wide_bracket_overrides(seed) if wide else None)
     start = time.perf_counter()
     try:
         image = process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
@@ -64,15 +68,22 @@ def main():
     parser.add_argument("--seeds", type=int, default=200)
     parser.add_argument("--first", type=int, default=0)
     parser.add_argument("--profile", default="full", choices=("quick", "full"))
+    parser.add_argument(
+        "--brackets",
+        default="drawn",
+        choices=("drawn", "wide"),
+        help="drawn: as each seed draws them; wide: a round rod or square bar 8-20 mm, inserted or resting",
+    )
     arguments = parser.parse_args()
+    wide = arguments.brackets == "wide"
     print(
-        f"{arguments.seeds} seeds from {arguments.first}, profile {arguments.profile}, "
+        f"{arguments.seeds} seeds from {arguments.first}, profile {arguments.profile}, brackets {arguments.brackets}, "
         f"load average {os.getloadavg()[0]:.1f} at the start"
     )
     groups = defaultdict(list)
     seconds, voxels, misses, scored = [], [], [], []
     for seed in range(arguments.first, arguments.first + arguments.seeds):
-        settings, score, elapsed, size = run_seed(seed, arguments.profile)
+        settings, score, elapsed, size = run_seed(seed, arguments.profile, wide)
         print(f"seed {seed}: {score}", file=sys.stderr, flush=True)  # progress
         seconds.append(elapsed)
         voxels.append(size)
@@ -80,6 +91,8 @@ def main():
         scored.append((seed, score))
         groups[f"bone {settings['bone']}"].append(score)
         groups[f"bracket {settings['bracket']}"].append(score)
+        if wide:
+            groups[f"bracket {settings['bracket_shape']}"].append(score)
         groups[f"partial volume {settings['partial_volume']}"].append(score)
         if (
             score.found < score.visible

@@ -11,7 +11,8 @@ not depend on, the way the image is formed included:
   cap missing (Fig. 4a's defect);
 * **a bracket** rod from the frame's hub to the bone, 4-12 mm thick (thinner than the bone it is fixed into) and of
   any HU: inserted into the bone (as the paper fixes its rigid body in the porcine ilium), resting on it, ending
-  short of it, or absent;
+  short of it, or absent; with ``wide_bracket_overrides(seed)``, a round rod or a square bar 8-20 mm across (up to
+  0.9 of the bone's half-thickness), inserted or resting;
 * **the bone**: an analytic long bone (a tube of cortex round marrow or cancellous bone, with or without its
   rounded end in view), an analytic flat bone (two cortical tables round cancellous bone) or a shipped bone mesh
   (tibia, fibula, ilium); cortex 700-2000 HU; bare in air or in 3-25 mm of soft tissue; the field of view may
@@ -55,6 +56,13 @@ VISIBLE_MARGIN_MM = 2.0
 #: ... and at least this fraction of its surface is bare (not sunk into the frame or covered by its post).
 MIN_EXPOSED = 0.8
 STATES = ("visible", "edge", "cut", "damaged", "hidden")
+#: Bracket shapes: a round rod (every seed's draw) or a square bar (``wide_bracket_overrides``).
+BRACKET_SHAPES = ("round", "square")
+#: A bracket's radius is at most this share of the bone's half-thickness: the seed's own draw, and with
+#: ``wide_bracket_overrides`` (the stream WIDE_STREAM apart from the CT's).
+BRACKET_CAP = 0.6
+WIDE_BRACKET_CAP = 0.9
+WIDE_STREAM = 27
 #: The reference body stands at least this far (mm) off the bone's soft tissue (its bracket goes through it).
 BODY_CLEARANCE_MM = 5.0
 #: The cortex is at least this many point-spread sigmas thick (see ``make_family_ct``).
@@ -380,8 +388,12 @@ def _draw_body(draw, anchor, normal, bone):
     damaged = draw("damaged", [int(k + 1) for k in range(len(centred)) if rng.random() < 0.04])
     cap_depths = rng.uniform(2.0, 5.0, size=len(centred))
     state = draw.choice("bracket", ("inserted", "resting", "short", "none"), p=[0.35, 0.2, 0.25, 0.2])
-    # A bracket fixed into a bone is thinner than the bone there (a thicker rod could not hold in it).
-    thinner = 0.6 * draw.values["bone_half_thickness_mm"]
+    # A bracket fixed into a bone is thinner than the bone there (a thicker rod could not hold in it). The shape and
+    # the cap are not drawn (every seed draws as before): ``wide_bracket_overrides`` sets them.
+    shape = draw("bracket_shape", "round")
+    if shape not in BRACKET_SHAPES:
+        raise ValueError(f"bracket_shape {shape!r}: use one of {', '.join(BRACKET_SHAPES)}")
+    thinner = draw("bracket_cap", BRACKET_CAP) * draw.values["bone_half_thickness_mm"]
     bracket_radius = min(0.5 * draw.uniform("bracket_diameter_mm", 4.0, 12.0), thinner)
     draw.values["bracket_diameter_mm"] = 2.0 * bracket_radius
     reach = {
@@ -421,7 +433,7 @@ def _draw_body(draw, anchor, normal, bone):
             break
         hub = hub + direction * (deficit + 2.0)
     draw.values["bracket_length_mm"] = float(np.linalg.norm(hub - anchor) - tissue)
-    bracket = None if reach is None else Capsule(hub, anchor + reach * direction, bracket_radius)
+    bracket = None if reach is None else _bracket_solid(shape, hub, anchor + reach * direction, bracket_radius)
     parts = [(bracket, bracket_hu)] if bracket is not None else []
     parts += [(solid, frame_hu) for solid in frame] + [(solid, post_hu) for solid in posts]
     parts += [(solid, sphere_hu) for solid in spheres]
@@ -435,6 +447,36 @@ def _draw_body(draw, anchor, normal, bone):
         "exposed": exposed,
         "bracket": bracket,
         "hub": hub,
+    }
+
+
+def _bracket_solid(shape, hub, end, radius):
+    """The bracket from the frame's ``hub`` to ``end`` (3,) mm: a 'round' rod (a capsule of ``radius`` mm, its tip
+    reaching ``radius`` past ``end``) or a 'square' bar (``radius`` the half of its side, its flat end where the
+    rod's tip would be, its edges rounded by half a millimetre), turned about its axis as the grid's first axis
+    allows."""
+    if shape == "round":
+        return Capsule(hub, end, radius)
+    axis = (end - hub) / np.linalg.norm(end - hub)
+    across = np.cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
+    across /= np.linalg.norm(across)
+    tip = end + radius * axis
+    axes = np.column_stack((across, np.cross(axis, across), axis))
+    half = np.array([radius, radius, 0.5 * float(np.linalg.norm(tip - hub))])
+    return Slab(0.5 * (hub + tip), axes, half, rounding=min(0.5, radius))
+
+
+def wide_bracket_overrides(seed):
+    """Overrides (``make_family_ct``) for a seed's CT with a wide bracket, drawn from the seed's own stream apart
+    from the CT's (the CT's other choices stay as the seed draws them): a round rod or a square bar, 8-20 mm across,
+    up to WIDE_BRACKET_CAP of the bone's half-thickness, inserted into the bone or resting on it (held-out CTs:
+    a 7 mm square bar inserted into a 9 mm flat bone, a 15 mm square bar resting on a 28 mm tibia)."""
+    rng = np.random.default_rng([int(seed), WIDE_STREAM])
+    return {
+        "bracket_shape": BRACKET_SHAPES[int(rng.integers(len(BRACKET_SHAPES)))],
+        "bracket_diameter_mm": float(rng.uniform(8.0, 20.0)),
+        "bracket": ("inserted", "resting")[int(rng.integers(2))],
+        "bracket_cap": WIDE_BRACKET_CAP,
     }
 
 
