@@ -18,10 +18,13 @@ from RAMSICPRegistrationLib.simulation.reference_body_phantom import (
     make_reference_body_phantom,
 )
 from RAMSICPRegistrationLib.simulation.reference_ct_family import (
+    BRACKET_CAP,
+    WIDE_BRACKET_CAP,
     FamilyTruth,
     FieldOfView,
     make_family_ct,
     score_image_side,
+    wide_bracket_overrides,
 )
 from RAMSICPRegistrationLib.simulation.solids import Capsule
 
@@ -631,6 +634,19 @@ def test_a_bone_the_round_field_of_view_cuts_along_its_length_is_not_refused_as_
     assert score.ipc_on_bone == score.ipc_points and score.coverage >= 0.70  # 1,659 points, 72 % covered measured
 
 
+@pytest.mark.parametrize("seed, covered", [(40010, 0.88), (40013, 0.92), (40029, 0.85)])
+def test_a_bracket_wider_than_14_mm_is_cut_off_a_bone_thicker_still(seed, covered):
+    """Wide brackets (``wide_bracket_overrides``, full profile): 40010 a 14.9 mm square bar resting on a 23 mm long
+    bone, 40013 a 16.7 mm square bar inserted into a 27 mm one, 40029 a 17.8 mm square bar resting on a 26 mm one
+    (its frame dim, 151 HU). With 7 mm the largest opening, each bar was kept with the bone, whole: 6,359, 2,036 and
+    7,407 IPC points on it. The 9 and 11 mm openings cut it off; a margin of the rod's opening round its foot (10 mm)
+    left out a ring of the bone as wide (86, 88 and 80 % covered), 3.5 mm leaves 91, 95 and 88 %."""
+    volume, truth = make_family_ct(seed, "full", overrides=wide_bracket_overrides(seed))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone >= 0.99 * score.ipc_points
+    assert score.coverage >= covered
+
+
 def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
     volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
@@ -697,6 +713,32 @@ def test_overrides_force_one_choice_and_leave_the_others():
     }
     with pytest.raises(ValueError, match="overrides sphere_colour: no such choice"):
         make_family_ct(11, overrides={"sphere_colour": "red"}, render=False)
+
+
+def test_wide_bracket_overrides_leave_the_seeds_other_choices_and_its_square_bar_has_corners():
+    """``wide_bracket_overrides`` forces the bracket's shape, width, state and cap only (every other choice as the
+    seed draws it; the same overrides each time); a square bar of half-side r holds the point (0.9 r, 0.9 r) across
+    its axis at mid-length, 1.27 r from the axis, which the round rod of radius r does not."""
+    seed = next(seed for seed in range(100) if wide_bracket_overrides(seed)["bracket_shape"] == "square")
+    overrides = wide_bracket_overrides(seed)
+    assert overrides == wide_bracket_overrides(seed)
+    _, drawn = make_family_ct(seed, render=False)
+    _, forced = make_family_ct(seed, overrides=overrides, render=False)
+    changed = set(overrides) | {"bracket_diameter_mm", "bracket_shape", "bracket_cap"}
+    assert {k: v for k, v in forced.settings.items() if k not in changed} == {
+        k: v for k, v in drawn.settings.items() if k not in changed
+    }
+    assert drawn.settings["bracket_shape"] == "round" and drawn.settings["bracket_cap"] == BRACKET_CAP
+    bar = forced.bracket
+    radius = forced.settings["bracket_diameter_mm"] / 2.0
+    assert radius <= WIDE_BRACKET_CAP * forced.settings["bone_half_thickness_mm"] + 1e-9
+    across, other, axis = bar.axes.T
+    middle = np.asarray(bar.centre)
+    assert bar.signed_distance(middle[None])[0] == pytest.approx(-radius, abs=1e-9)
+    corner = middle + 0.9 * radius * (across + other)
+    assert bar.signed_distance(corner[None])[0] < 0.0
+    rod = Capsule(middle - bar.half_size[2] * axis, middle + bar.half_size[2] * axis, radius)
+    assert rod.signed_distance(corner[None])[0] == pytest.approx((0.9 * np.sqrt(2.0) - 1.0) * radius, abs=1e-9)
 
 
 def test_the_truth_has_known_answers():

@@ -11,6 +11,8 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    plausibly bone survives is just over the bracket's (the neck the opening cut). That part, and the thin bits
    hanging off it that do not lead to a sphere, is the bone; the rest (bracket, frame, posts) is the body, and
    IPC points within that radius and a cell of it are left out (the bracket's stub, the corner the blur fills).
+   The largest opening is 7 mm; on a bone thick enough, the cut is made again with 9 and 11 mm too, for a bracket
+   wider than 14 mm, and taken when it keeps less and leaves no bone-like piece on the body's side.
    Where no sphere says where the body is (its spheres out of view or sunk into its frame) or the spheres miss a
    part of it, the opening tells it too: a **solid** part (its rim no brighter than its inside: a frame, a
    bracket) that falls apart from a part with a cortex is the body's, and so is a solid part that the bone's core,
@@ -66,6 +68,18 @@ MIN_CORE_MM3 = 100.0
 RIM_MM = 2.5
 #: Opening radii (mm) tried to cut a bracket off the bone, smallest first.
 OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
+#: ... and, on an object thick enough, a second cut with these too, for a bracket wider than 14 mm on a bone thicker
+#: still (``wide_bracket_overrides``: a 15-18 mm bar on a 23-27 mm long bone was kept with the bone whole, 2,000-7,400
+#: IPC points on it). It is taken only when it leaves no piece with a cortex round its inside on the body's side: its
+#: first core, a thick part of the bone, can reach the body's seeds at the next opening and keep only that part
+#: (wide seed 40071: a 12.5 mm rod resting on a tibia, 2 IPC points left).
+WIDE_OPENING_RADII_MM = (9.0, 11.0)
+#: A rod set apart at an opening leaves a stub on the bone, and the IPC points within that opening (and a cell or two)
+#: of the body were left out; at most ROD_MARGIN_MAX_MM (mm) of it now: the stub itself is taken off the bone
+#: (``bracket_stub``, ``rod_stub``), and a margin as wide as a wide bracket's opening left out a ring as wide round
+#: its foot (``wide_bracket_overrides`` seed 40010: a 15 mm square bar resting on a 23 mm long bone, its coverage
+#: 91 % with 3.5 mm, 86 % with 7 mm).
+ROD_MARGIN_MAX_MM = 3.5
 #: The bracket, as the bone's core grows it out of the bone kept so far, crosses the band ROD_FROM_MM to ROD_TO_MM
 #: from it.
 ROD_FROM_MM = 1.5
@@ -473,10 +487,12 @@ def _labels_at(volume, segmentation, points):
 
 @dataclass(frozen=True)
 class _Cut:
-    """The bone's part of an object that also holds the body: ``bone`` cells on the object's grid, the radius."""
+    """The bone's part of an object that also holds the body: ``bone`` cells on the object's grid, the margin (mm)
+    round the body within which IPC points are left out, and the opening (mm) that cut it."""
 
     bone: np.ndarray
     margin_mm: float
+    opening_mm: float
 
 
 class _ObjectShape:
@@ -661,7 +677,36 @@ class _ObjectShape:
         docstring), or the verdict 'reference body' when no bone is in it (or, with ``no_bone_on_body``, when the
         body's side would hold a piece with a cortex; with ``no_more_bone_on_body``, such a piece larger than the
         bone kept). With no ``seeds`` (no sphere anywhere), only the solid parts the bone's core grows are the
-        body's; without one, there is no cut (None)."""
+        body's; without one, there is no cut (None). On an object thick enough, a cut with the wide openings too
+        (WIDE_OPENING_RADII_MM) that leaves no bone-like piece on the body's side is taken instead when what the first
+        kept and it does not is solid (a bracket wider than the first's largest opening), or when the first found no
+        cut, and only when its openings went on below the wide ones: one that stops at a wide opening found the
+        bone's thickest part alone before the body's seeds (family seed 17044, a 9.9 mm bracket inserted into a 29 mm
+        long bone, its first cut with the solid parts' seeds none: the wide one stopped at 9 mm, 77.6 % of the bone
+        covered, where the cut without the solid parts' seeds covers 84.5 %)."""
+        guard = {"no_bone_on_body": no_bone_on_body, "no_more_bone_on_body": no_more_bone_on_body}
+        verdict, cut = self._cut_off_body(seeds, OPENING_RADII_MM, **guard)
+        if self.depth.max() >= WIDE_OPENING_RADII_MM[0]:
+            wide_verdict, wide_cut = self._cut_off_body(
+                seeds, OPENING_RADII_MM + WIDE_OPENING_RADII_MM, no_bone_on_body=True
+            )
+            # A wide cut that stops at a wide opening found only the bone's thickest part before the body's seeds.
+            down = wide_cut is not None and wide_cut.opening_mm < WIDE_OPENING_RADII_MM[0]
+            if down and (cut is None or self._kept_a_solid_part(cut.bone & ~wide_cut.bone)):
+                verdict, cut = wide_verdict, wide_cut
+        if cut is not None:
+            logger.info("reference body cut off the bone by an opening of %.1f mm", cut.opening_mm)
+        return verdict, cut
+
+    def _kept_a_solid_part(self, cells):
+        """True when ``cells`` (what one cut kept with the bone and another did not) make a solid part of at least
+        MIN_CORE_MM3: a rim no brighter than its inside (``is_solid``)."""
+        if cells.sum() * np.prod(self.cell) < MIN_CORE_MM3:
+            return False
+        return is_solid(self._cortex(cells, self._depth_of(cells)))
+
+    def _cut_off_body(self, seeds, openings, no_bone_on_body=False, no_more_bone_on_body=False):
+        """``cut_off_body`` with the opening radii ``openings`` (mm, smallest first)."""
         centres = np.array([point for point, _ in seeds]).reshape(-1, 3)
         reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
         cells = self._cell_centres_ras()
@@ -673,7 +718,7 @@ class _ObjectShape:
         # The bone's core: at the largest opening that leaves a part far from the body big enough to be a bone. A
         # bracket fixed into a bone is thinner than the bone there, so this opening has cut it.
         found = None
-        for opening in [r for r in OPENING_RADII_MM[::-1] if r <= depth.max()]:
+        for opening in [r for r in openings[::-1] if r <= depth.max()]:
             cores, count = ndimage.label(depth >= opening)
             sizes = np.bincount(cores.ravel(), minlength=count + 1)
             sizes[0] = 0
@@ -703,13 +748,13 @@ class _ObjectShape:
         bone_going_on = _bone_going_on(own_contrast)
         apart = np.zeros(rest.shape, dtype=bool)
         margin = 0.0
-        for opening in [r for r in OPENING_RADII_MM[::-1] if r < kept]:
+        for opening in [r for r in openings[::-1] if r < kept]:
             part = self._core_through(depth >= opening, core_kept, apart)
             away = self._distance_to(bone, ROD_TO_MM)  # from the bone kept so far: the rods' band, the far parts
             rods = self._rods(part, bone, away, rest & ~apart, near_sphere, opening, bone_going_on)
             if rods.any():
                 apart |= self._within(rods, opening + self.cell.max())
-                margin = max(margin, opening)
+                margin = max(margin, min(opening, ROD_MARGIN_MAX_MM))
                 part = self._core_through(part, core_kept, apart)
             solid = self._solid_parts_grown(part, away, rest, opening)
             if solid.any():
@@ -730,11 +775,10 @@ class _ObjectShape:
             # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), or a seed
             # tied by the tool's distances lay in it, and the cut went through the bone.
             return self.verdict(len(seeds)), None
-        logger.info("reference body cut off the bone by an opening of %.1f mm", kept)
         # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell
         # or two more: IPC points that near the body's side are left out.
         margin = max(margin, kept) + 2.0 * float(self.cell.max()) + 1.0
-        return verdict, _Cut(bone, margin)
+        return verdict, _Cut(bone, margin, kept)
 
     def _solid_parts_grown(self, core, away, rest, opening):
         """The cells of the bone's ``core`` (at ``opening`` mm) that make solid parts farther than ROD_TO_MM from the
