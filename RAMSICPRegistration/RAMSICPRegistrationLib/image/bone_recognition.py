@@ -12,7 +12,7 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    hanging off it that do not lead to a sphere, is the bone; the rest (bracket, frame, posts) is the body, and
    IPC points within that radius and a cell of it are left out (the bracket's stub, the corner the blur fills).
    The largest opening is 7 mm; on a bone thick enough, the cut is made again with 9 and 11 mm too, for a bracket
-   wider than 14 mm, and taken when it keeps less and leaves no bone-like piece on the body's side.
+   wider than 14 mm, and taken when what only the first kept is solid (``_ObjectShape.cut_off_body``).
    Where no sphere says where the body is (its spheres out of view or sunk into its frame) or the spheres miss a
    part of it, the opening tells it too: a **solid** part (its rim no brighter than its inside: a frame, a
    bracket) that falls apart from a part with a cortex is the body's, and so is a solid part that the bone's core,
@@ -70,9 +70,9 @@ RIM_MM = 2.5
 OPENING_RADII_MM = (1.5, 2.0, 2.75, 3.5, 4.5, 5.5, 7.0)
 #: ... and, on an object thick enough, a second cut with these too, for a bracket wider than 14 mm on a bone thicker
 #: still (``wide_bracket_overrides``: a 15-18 mm bar on a 23-27 mm long bone was kept with the bone whole, 2,000-7,400
-#: IPC points on it). It is taken only when it leaves no piece with a cortex round its inside on the body's side: its
-#: first core, a thick part of the bone, can reach the body's seeds at the next opening and keep only that part
-#: (wide seed 40071: a 12.5 mm rod resting on a tibia, 2 IPC points left).
+#: IPC points on it). Its first core, a thick part of the bone, can reach the body's seeds at the next opening and
+#: keep only that part (wide seed 40071: a 12.5 mm rod resting on a tibia, 2 IPC points left): it is taken only on
+#: the terms of ``_ObjectShape.cut_off_body``.
 WIDE_OPENING_RADII_MM = (9.0, 11.0)
 #: A rod set apart at an opening leaves a stub on the bone, and the IPC points within that opening (and a cell or two)
 #: of the body were left out; at most ROD_MARGIN_MAX_MM (mm) of it now: the stub itself is taken off the bone

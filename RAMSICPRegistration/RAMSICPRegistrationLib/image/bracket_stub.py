@@ -269,7 +269,7 @@ def _line_from(meeting, mask, spacing, image):
     return BracketLine(centre, direction, radius, tip, length)
 
 
-def _band(hu):
+def bracket_band(hu):
     """How far (HU) from a bracket's ``hu`` the image along its axis may stray and still be the bracket: THROUGH_BAND
     of it, at least THROUGH_BAND_HU."""
     return max(THROUGH_BAND * abs(hu), THROUGH_BAND_HU)
@@ -279,7 +279,7 @@ def _run_end(image, start_mm, direction, hu, spacing):
     """Where (mm past ``start_mm`` along ``direction``) the image along the axis of a bracket of ``hu`` leaves its
     band (THROUGH_BAND of its HU, at least THROUGH_BAND_HU) for a millimetre, the axis' samples (mm), and the image
     there (HU); the end is None when it stays in the band to MAX_LINE_MM."""
-    band = _band(hu)
+    band = bracket_band(hu)
     steps = np.arange(0.0, MAX_LINE_MM + 1e-6, 0.5)
     axis = start_mm + steps[:, None] * direction
     values = ndimage.map_coordinates(image, (axis / spacing).T, order=1, mode="nearest")
@@ -309,7 +309,7 @@ def _inside_run(image, start_mm, direction, hu, radius, spacing):
     offsets = positions - start_mm
     along = offsets @ direction
     across = np.linalg.norm(offsets - along[:, None] * direction, axis=1)
-    band = _band(hu)
+    band = bracket_band(hu)
     keep = (along >= 0.0) & (along <= end) & (across <= radius) & (np.abs(image[box].ravel() - hu) <= band)
     return positions[keep]
 

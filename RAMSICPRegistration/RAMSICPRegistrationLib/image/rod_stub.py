@@ -18,6 +18,7 @@ widens at once) gives no stub.
 import numpy as np
 from scipy import ndimage
 
+from .bracket_stub import bracket_band
 from .morphology import dilate
 
 #: The junction (where the body meets the bone) is read from at most this many of its pieces, the largest first,
@@ -35,10 +36,6 @@ INNER_MM = 1.0
 OUTER_MM = 4.0
 WIDENS = 0.25
 MIN_WIDENING = 3
-#: Along the axis the image stays within BAND of the bracket's brightness (at least BAND_HU) on a rod; leaving it
-#: for a millimetre ends it.
-BAND = 0.25
-BAND_HU = 100.0
 #: The rod's axis is fitted again at most this many times to the junction and the rod walked so far.
 REFITS = 3
 #: ... by at most MAX_LEAN_DEGREES off the junction's normal.
@@ -155,7 +152,7 @@ def _rod_length(along, across, footprint, image, centre, normal, hu, spacing):
     round_it = np.bincount(bins[valid & ring], minlength=len(steps))[: len(steps)]
     axis = (centre + steps[:, None] * normal) / spacing
     values = ndimage.map_coordinates(image, axis.T, order=1, mode="nearest")
-    out = np.abs(values - hu) > max(BAND * abs(hu), BAND_HU)
+    out = np.abs(values - hu) > bracket_band(hu)
     out_for_a_mm = out & np.concatenate([out[1:], [True]])
     emptied = (on == 0) & (np.cumsum(on) > 0)  # the junction lies a voxel or so before the rod's first voxels
     ended = (round_it >= np.maximum(WIDENS * on, MIN_WIDENING)) | emptied | out_for_a_mm
