@@ -19,7 +19,7 @@ import numpy as np
 from scipy import ndimage
 
 from .bracket_stub import bracket_band
-from .morphology import dilate
+from .morphology import bounding_box, dilate
 
 #: The junction (where the body meets the bone) is read from at most this many of its pieces, the largest first,
 #: each of at least MIN_JUNCTION voxels.
@@ -27,8 +27,10 @@ JUNCTIONS = 3
 MIN_JUNCTION = 10
 #: A rod's cross-section is at most this far (mm) from its axis: a 15 mm square bar's corner is 10.6 mm from it.
 MAX_FOOTPRINT_MM = 12.0
-#: The stub is followed at most this far (mm) from the junction, in steps of STEP_MM (a voxel, if coarser).
+#: The stub is followed at most this far (mm) from the junction, in steps of STEP_MM (a voxel, if coarser); over the
+#: bone's voxels within FIRST_REACH_MM first (most junctions end at once: the cut was at the bone).
 MAX_LENGTH_MM = 60.0
+FIRST_REACH_MM = 12.0
 STEP_MM = 0.5
 #: The bone round the rod: its voxels INNER_MM to OUTER_MM beyond the rod's cross-section (mm). The rod has ended
 #: where they are at least WIDENS of the rod's voxels in a step (at least MIN_WIDENING voxels).
@@ -52,7 +54,10 @@ def rod_stub(mask, body, spacing, image):
     if not body.any() or not mask.any():
         return stub
     spacing = np.asarray(spacing, float)
-    joined = body & dilate(mask, iterations=2)
+    # Where the body meets the bone, over the body's box only (a few % of the bone's).
+    low, high = bounding_box(body, pad=3)
+    near_body = tuple(slice(a, b) for a, b in zip(low, high))
+    joined = body[near_body] & dilate(mask[near_body], iterations=2)
     pieces, count = ndimage.label(joined, structure=np.ones((3, 3, 3), dtype=bool))
     if count == 0:
         return stub
@@ -60,30 +65,48 @@ def rod_stub(mask, body, spacing, image):
     for label in np.argsort(sizes, kind="stable")[::-1][:JUNCTIONS] + 1:
         if sizes[label - 1] < MIN_JUNCTION:
             break
-        stub |= _stub_from(pieces == label, mask, body, spacing, image)
+        junction = (np.argwhere(pieces == label) + low) * spacing
+        stub |= _stub_from(junction, mask, body, spacing, image)
     return stub
 
 
 def _stub_from(junction, mask, body, spacing, image):
-    """The stub (booleans over the box) that goes on from one ``junction`` piece into the bone, or none."""
+    """The stub (booleans over the box) that goes on from one ``junction`` piece ((N, 3) positions, mm) into the bone,
+    or none. Walked over a box FIRST_REACH_MM round the junction first, and over MAX_LENGTH_MM when it goes that far."""
     stub = np.zeros(mask.shape, dtype=bool)
-    positions = np.argwhere(junction) * spacing
-    centre = positions.mean(axis=0)
-    normal = np.linalg.svd(positions - centre, full_matrices=False)[2][2]
-    footprint = float(_across(positions, centre, normal).max())
+    centre = junction.mean(axis=0)
+    normal = np.linalg.svd(junction - centre, full_matrices=False)[2][2]
+    footprint = float(_across(junction, centre, normal).max())
     if footprint > MAX_FOOTPRINT_MM:
         return stub
-    reach = MAX_LENGTH_MM + footprint + OUTER_MM
-    low = np.maximum(np.floor((centre - reach) / spacing).astype(int), 0)
-    high = np.minimum(np.ceil((centre + reach) / spacing).astype(int) + 1, mask.shape)
+    for reach in (FIRST_REACH_MM, MAX_LENGTH_MM):
+        walked = _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image)
+        if walked is None or walked[0] < reach:
+            break
+    if walked is None or walked[0] < MIN_STUB_MM:
+        return stub
+    length, bone_voxels, along, across, start, axis = walked
+    first = float(((junction - start) @ axis).min()) - spacing.max()  # a leaning cut's high side
+    on_rod = (along >= first) & (along <= length) & (across <= footprint + INNER_MM)
+    stub[tuple(bone_voxels[on_rod].T)] = True
+    return stub
+
+
+def _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image):
+    """(length mm, bone voxels (M, 3), their along and across (M,) mm, the axis' start and direction): the rod from the
+    ``junction`` walked over the bone's voxels within ``reach`` (and the rod's cross-section) of its centre, or None
+    when no bone lies next to it."""
+    half = reach + footprint + OUTER_MM
+    low = np.maximum(np.floor((centre - half) / spacing).astype(int), 0)
+    high = np.minimum(np.ceil((centre + half) / spacing).astype(int) + 1, mask.shape)
     box = tuple(slice(a, b) for a, b in zip(low, high))
-    # The bone's voxels near the junction's line, and the body's: the normal points into the bone.
+    # The bone's voxels near the junction's line: the normal points into the bone.
     bone_voxels = np.argwhere(mask[box]) + low
     bone_mm = bone_voxels * spacing
     along, across = (bone_mm - centre) @ normal, _across(bone_mm, centre, normal)
     near = (across <= footprint + INNER_MM) & (np.abs(along) <= 2.0 * STEP_MM + spacing.max())
     if not near.any():
-        return stub
+        return None
     if np.median(along[near]) < 0:
         normal, along = -normal, -along
     hu = _bracket_hu(body, image, centre, normal, footprint, spacing)
@@ -107,12 +130,7 @@ def _stub_from(junction, mask, body, spacing, image):
         if longer <= length:
             break
         centre, normal, along, across, length = start, axis, along_new, across_new, longer
-    if length < MIN_STUB_MM:
-        return stub
-    first = float(((positions - centre) @ normal).min()) - spacing.max()  # a leaning cut's high side
-    on_rod = (along >= first) & (along <= length) & (across <= footprint + INNER_MM)
-    stub[tuple(bone_voxels[on_rod].T)] = True
-    return stub
+    return length, bone_voxels, along, across, centre, normal
 
 
 def _across(positions_mm, centre, direction):
