@@ -364,13 +364,14 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
         # A long stub (the cut went through the bracket far from the bone) is the body's before its line is read:
         # the line then runs from the bracket's true end into the bone.
-        rod = rod_stub(mask, segmentation.body[box], volume.spacing, segmentation.smoothed[box])
+        body_in_box = segmentation.body[box]
+        rod = rod_stub(mask, body_in_box, volume.spacing, segmentation.smoothed[box])
         body = segmentation.body
         if rod.any():
             body = body.copy()
             body[box] |= rod
         line = bracket_line_beyond(mask & ~rod, body, low, volume.spacing, segmentation.smoothed)
-        stub = bracket_stub(mask, segmentation.body[box], volume.spacing) | rod
+        stub = bracket_stub(mask, body_in_box, volume.spacing) | rod
         if stub.any():
             mask, other = mask & ~stub, other | stub
             cut_off = cut_off | stub

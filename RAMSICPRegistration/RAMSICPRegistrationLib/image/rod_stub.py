@@ -96,12 +96,8 @@ def _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image
     """(length mm, bone voxels (M, 3), their along and across (M,) mm, the axis' start and direction): the rod from the
     ``junction`` walked over the bone's voxels within ``reach`` (and the rod's cross-section) of its centre, or None
     when no bone lies next to it."""
-    half = reach + footprint + OUTER_MM
-    low = np.maximum(np.floor((centre - half) / spacing).astype(int), 0)
-    high = np.minimum(np.ceil((centre + half) / spacing).astype(int) + 1, mask.shape)
-    box = tuple(slice(a, b) for a, b in zip(low, high))
     # The bone's voxels near the junction's line: the normal points into the bone.
-    bone_voxels = np.argwhere(mask[box]) + low
+    bone_voxels = _voxels_round(mask, centre, reach + footprint + OUTER_MM, spacing)
     bone_mm = bone_voxels * spacing
     along, across = (bone_mm - centre) @ normal, _across(bone_mm, centre, normal)
     near = (across <= footprint + INNER_MM) & (np.abs(along) <= 2.0 * STEP_MM + spacing.max())
@@ -133,6 +129,13 @@ def _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image
     return length, bone_voxels, along, across, centre, normal
 
 
+def _voxels_round(mask, centre, reach, spacing):
+    """(M, 3) indices of ``mask``'s True voxels in the box reaching ``reach`` (mm) round ``centre`` (3,) mm."""
+    low = np.maximum(np.floor((centre - reach) / spacing).astype(int), 0)
+    high = np.minimum(np.ceil((centre + reach) / spacing).astype(int) + 1, mask.shape)
+    return np.argwhere(mask[tuple(slice(a, b) for a, b in zip(low, high))]) + low
+
+
 def _across(positions_mm, centre, direction):
     """(M,) distances (mm) of positions (M, 3) from the line through ``centre`` along the unit ``direction``."""
     offsets = positions_mm - centre
@@ -142,10 +145,7 @@ def _across(positions_mm, centre, direction):
 def _bracket_hu(body, image, centre, normal, footprint, spacing):
     """The bracket's brightness (HU): the median of the body's voxels within half its cross-section of its axis and
     4 mm back from the junction."""
-    reach = footprint + 4.0
-    low = np.maximum(np.floor((centre - reach) / spacing).astype(int), 0)
-    high = np.minimum(np.ceil((centre + reach) / spacing).astype(int) + 1, body.shape)
-    voxels = np.argwhere(body[tuple(slice(a, b) for a, b in zip(low, high))]) + low
+    voxels = _voxels_round(body, centre, footprint + 4.0, spacing)
     positions = voxels * spacing
     along = (positions - centre) @ normal
     core = (along <= 0.0) & (along >= -4.0) & (_across(positions, centre, normal) <= 0.5 * footprint + spacing.max())
@@ -157,8 +157,7 @@ def _bracket_hu(body, image, centre, normal, footprint, spacing):
 def _rod_length(along, across, footprint, image, centre, normal, hu, spacing):
     """How far (mm) from the junction the bone goes on as the rod: until, in a step of STEP_MM, its voxels beyond the
     rod's cross-section (INNER_MM to OUTER_MM) are WIDENS of those on it (the bone's own surface), none is on it any
-    more, or
-    the image on the axis leaves the bracket's band (``hu``) for a millimetre."""
+    more, or the image on the axis leaves the bracket's band round ``hu`` (``bracket_band``) for a millimetre."""
     if hu is None:
         return 0.0
     step = max(STEP_MM, float(spacing.max()))  # a step holds a voxel of the rod whichever way it runs
