@@ -210,6 +210,12 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     status, note = _status(volume, centre, 5.75, 5.7, CLEAN_FIT_MM / 2, 0.77, 0.09, inward=0.06)
     assert status == "partial" and "6 % of its edge lies 0.3 mm or more inside it" in note
     assert _status(volume, centre, 5.75, 5.7, CLEAN_FIT_MM / 2, 0.77, 0.09, inward=0.02)[0] == "ok"
+    # A sphere a seventh hidden whose fitted radius is 0.1 mm longer than the nominal: the blur of what it is sunk into
+    # pushed its edges out (wide family seed 40088: 0.27 mm off). Seen nearly whole, a larger ball stays clean.
+    status, note = _status(volume, centre, 5.75, 5.85, 0.15, 0.86, 0.0)
+    assert status == "partial" and "radius 5.85 mm (nominal 5.75 mm) where 14 % of it is hidden" in note
+    assert _status(volume, centre, 5.75, 5.85, 0.15, 0.95, 0.0)[0] == "ok"
+    assert _status(volume, centre, 5.75, 5.65, 0.15, 0.86, 0.0)[0] == "ok"
 
 
 def test_clean_spheres_are_paired_first_and_the_posts_feet_do_not_take_markers():
@@ -257,6 +263,7 @@ def test_a_pairing_resting_on_spots_that_fit_no_sphere_numbers_no_sphere():
     ordered, pairing, missing, warnings, _ = _pair_with_tool(volume, spheres, tool, 5.75)
     assert pairing is None and not any(s.number for s in ordered) and missing == ()
     assert "fewer than 3 of them at the distances" in warnings[0]
+    assert "(those at its distances are 1 round sphere(s) and 2 spot(s) that fit no sphere)" in warnings[0]
     spheres[0] = sphere(centres[0], "partial")
     ordered, pairing, _, _, _ = _pair_with_tool(volume, spheres, tool, 5.75)
     assert pairing is not None

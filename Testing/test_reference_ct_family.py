@@ -647,6 +647,18 @@ def test_a_bracket_wider_than_14_mm_is_cut_off_a_bone_thicker_still(seed, covere
     assert score.coverage >= covered
 
 
+def test_a_sphere_swollen_by_the_frame_it_is_sunk_into_is_not_usable():
+    """Wide seed 40088: four 517 HU spheres sunk into a 104 HU star frame 11.5 mm thick. The frame's blur pushes the
+    edges out where it holds them: one sphere, seen over 86 % with a fitted radius 0.10 mm over the nominal, was
+    clean and 0.27 mm off. A sphere partly hidden and larger than the nominal is partial now: none is usable."""
+    volume, truth = make_family_ct(40088, "full", overrides=wide_bracket_overrides(40088))
+    image, score = run(volume, truth)
+    assert score.false == 0 and not image.usable
+    swollen = [sphere for sphere in image.spheres if "pushes its edge out" in sphere.note]
+    assert swollen and all(sphere.status == "partial" and sphere.radius_mm > 5.8 for sphere in swollen)
+    assert all(np.linalg.norm(truth.marker_centres - sphere.centre, axis=1).min() < 0.5 for sphere in image.spheres)
+
+
 def test_a_ct_without_a_bone_is_refused_with_what_was_found(tmp_path, capsys):
     """The reference-body phantom with its shaft and soft tissue blanked out: only the body and its spheres."""
     volume, truth = make_reference_body_phantom(ReferenceBodyModel("aluminium", "aluminium"))
