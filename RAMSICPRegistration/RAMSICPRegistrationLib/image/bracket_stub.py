@@ -162,14 +162,20 @@ class BracketLine:
 
     def contains(self, positions_mm):
         """(M,) booleans for (M, 3) positions in mm (index times spacing, the frame of the arrays fitted)."""
-        offsets = positions_mm - self.point_mm
-        along = offsets @ self.direction
-        across = np.linalg.norm(offsets - along[:, None] * self.direction, axis=1)
+        along, across = along_and_across(positions_mm, self.point_mm, self.direction)
         return (
             (across <= self.radius_mm + LINE_MARGIN_MM)
             & (along >= self.tip - 2.0)
             & (along <= self.tip + self.length_mm)
         )
+
+
+def along_and_across(positions_mm, point_mm, direction):
+    """(M,) distances (mm) of positions (M, 3) along the unit ``direction`` from ``point_mm`` (3,), and (M,) their
+    distances from the line through it."""
+    offsets = positions_mm - point_mm
+    along = offsets @ direction
+    return along, np.linalg.norm(offsets - along[:, None] * direction, axis=1)
 
 
 def _opened(depth, radius, spacing):
@@ -306,9 +312,7 @@ def _inside_run(image, start_mm, direction, hu, radius, spacing):
         return np.zeros((0, 3))
     box = tuple(slice(a, b) for a, b in zip(low, high))
     positions = (np.argwhere(np.ones(high - low, dtype=bool)) + low) * spacing
-    offsets = positions - start_mm
-    along = offsets @ direction
-    across = np.linalg.norm(offsets - along[:, None] * direction, axis=1)
+    along, across = along_and_across(positions, start_mm, direction)
     band = bracket_band(hu)
     keep = (along >= 0.0) & (along <= end) & (across <= radius) & (np.abs(image[box].ravel() - hu) <= band)
     return positions[keep]

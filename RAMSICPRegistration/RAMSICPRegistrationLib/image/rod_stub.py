@@ -18,7 +18,7 @@ widens at once) gives no stub.
 import numpy as np
 from scipy import ndimage
 
-from .bracket_stub import bracket_band
+from .bracket_stub import along_and_across, bracket_band
 from .morphology import bounding_box, dilate
 
 #: The junction (where the body meets the bone) is read from at most this many of its pieces, the largest first,
@@ -76,7 +76,7 @@ def _stub_from(junction, mask, body, spacing, image):
     stub = np.zeros(mask.shape, dtype=bool)
     centre = junction.mean(axis=0)
     normal = np.linalg.svd(junction - centre, full_matrices=False)[2][2]
-    footprint = float(_across(junction, centre, normal).max())
+    footprint = float(along_and_across(junction, centre, normal)[1].max())
     if footprint > MAX_FOOTPRINT_MM:
         return stub
     for reach in (FIRST_REACH_MM, MAX_LENGTH_MM):
@@ -99,7 +99,7 @@ def _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image
     # The bone's voxels near the junction's line: the normal points into the bone.
     bone_voxels = _voxels_round(mask, centre, reach + footprint + OUTER_MM, spacing)
     bone_mm = bone_voxels * spacing
-    along, across = (bone_mm - centre) @ normal, _across(bone_mm, centre, normal)
+    along, across = along_and_across(bone_mm, centre, normal)
     near = (across <= footprint + INNER_MM) & (np.abs(along) <= 2.0 * STEP_MM + spacing.max())
     if not near.any():
         return None
@@ -121,7 +121,7 @@ def _walk(junction, centre, normal, footprint, reach, mask, body, spacing, image
             break
         middle = bone_mm[on_rod].mean(axis=0)
         start = middle + ((centre - middle) @ axis) * axis  # the point of the new axis next to the junction's centre
-        along_new, across_new = (bone_mm - start) @ axis, _across(bone_mm, start, axis)
+        along_new, across_new = along_and_across(bone_mm, start, axis)
         longer = _rod_length(along_new, across_new, footprint, image, start, axis, hu, spacing)
         if longer <= length:
             break
@@ -136,19 +136,13 @@ def _voxels_round(mask, centre, reach, spacing):
     return np.argwhere(mask[tuple(slice(a, b) for a, b in zip(low, high))]) + low
 
 
-def _across(positions_mm, centre, direction):
-    """(M,) distances (mm) of positions (M, 3) from the line through ``centre`` along the unit ``direction``."""
-    offsets = positions_mm - centre
-    return np.linalg.norm(offsets - (offsets @ direction)[:, None] * direction, axis=1)
-
-
 def _bracket_hu(body, image, centre, normal, footprint, spacing):
     """The bracket's brightness (HU): the median of the body's voxels within half its cross-section of its axis and
     4 mm back from the junction."""
     voxels = _voxels_round(body, centre, footprint + 4.0, spacing)
     positions = voxels * spacing
-    along = (positions - centre) @ normal
-    core = (along <= 0.0) & (along >= -4.0) & (_across(positions, centre, normal) <= 0.5 * footprint + spacing.max())
+    along, across = along_and_across(positions, centre, normal)
+    core = (along <= 0.0) & (along >= -4.0) & (across <= 0.5 * footprint + spacing.max())
     if not core.any():
         return None
     return float(np.median(image[tuple(voxels[core].T)]))
