@@ -689,10 +689,11 @@ class _ObjectShape:
         long bone, its first cut with the solid parts' seeds none: the wide one stopped at 9 mm, 77.6 % of the bone
         covered, where the cut without the solid parts' seeds covers 84.5 %)."""
         guard = {"no_bone_on_body": no_bone_on_body, "no_more_bone_on_body": no_more_bone_on_body}
-        verdict, cut = self._cut_off_body(seeds, OPENING_RADII_MM, **guard)
+        apart_from_seeds = self._apart_from_seeds(seeds)
+        verdict, cut = self._cut_off_body(seeds, apart_from_seeds, OPENING_RADII_MM, **guard)
         if self.depth.max() >= WIDE_OPENING_RADII_MM[0]:
             wide_verdict, wide_cut = self._cut_off_body(
-                seeds, OPENING_RADII_MM + WIDE_OPENING_RADII_MM, no_bone_on_body=True
+                seeds, apart_from_seeds, OPENING_RADII_MM + WIDE_OPENING_RADII_MM, no_bone_on_body=True
             )
             # A wide cut that stops at a wide opening found only the bone's thickest part before the body's seeds.
             down = wide_cut is not None and wide_cut.opening_mm < WIDE_OPENING_RADII_MM[0]
@@ -710,16 +711,21 @@ class _ObjectShape:
         contrast = self._cortex(cells, self._depth_of(cells))
         return contrast is not None and contrast < WIDE_SOLID_CONTRAST_HU
 
-    def _cut_off_body(self, seeds, openings, no_bone_on_body=False, no_more_bone_on_body=False):
-        """``cut_off_body`` with the opening radii ``openings`` (mm, smallest first)."""
-        centres = np.array([point for point, _ in seeds]).reshape(-1, 3)
-        reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
-        cells = self._cell_centres_ras()
+    def _apart_from_seeds(self, seeds):
+        """What every cut of the object at ``seeds`` starts from: the cells within the seeds' reach (booleans), the
+        rest of the object (booleans), and the rest's depth (mm, its distance transform)."""
         near_sphere = np.zeros(self.filled.shape, dtype=bool)
         for centre, reach in seeds:
             near_sphere |= self._ball(centre, reach)
         rest = self.filled & ~near_sphere
-        depth = ndimage.distance_transform_edt(rest, sampling=self.cell)
+        return near_sphere, rest, ndimage.distance_transform_edt(rest, sampling=self.cell)
+
+    def _cut_off_body(self, seeds, apart_from_seeds, openings, no_bone_on_body=False, no_more_bone_on_body=False):
+        """``cut_off_body`` with the opening radii ``openings`` (mm, smallest first), from ``_apart_from_seeds``."""
+        centres = np.array([point for point, _ in seeds]).reshape(-1, 3)
+        reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
+        cells = self._cell_centres_ras()
+        near_sphere, rest, depth = apart_from_seeds
         # The bone's core: at the largest opening that leaves a part far from the body big enough to be a bone. A
         # bracket fixed into a bone is thinner than the bone there, so this opening has cut it.
         found = None
