@@ -80,8 +80,8 @@ HIDDEN_FIT_MM = 0.10
 HIDDEN_RADIUS_MM = 0.12
 #: A sphere seen over less than SWOLLEN_COVERAGE whose fitted radius exceeds the nominal by more than SWOLLEN_MM is
 #: partial: the blur of the frame or post it is sunk into pushes its edges out, and its centre with them. A blurred
-#: ball's half-max edge lies inside its surface, never outside: over the 1,120 clean spheres paired in 400 family
-#: CTs (12000-13099, and 40000-40199 with wide brackets), the fitted radius was 0.009-0.20 mm short of the nominal.
+#: ball's half-max edge lies inside its surface, never outside: of the 1,120 clean spheres paired in 400 family CTs
+#: (12000-13099, and 40000-40199 with wide brackets), 1,119 were fitted 0.009-0.20 mm short of the nominal radius.
 #: The one longer (wide seed 40088: a 517 HU sphere sunk into a 104 HU star, seen over 86 %, radius +0.10 mm, RMS
 #: 0.16 mm) was 0.27 mm off. A sphere seen nearly whole keeps its status: a ball larger than the tool's says so.
 SWOLLEN_COVERAGE = 0.9
