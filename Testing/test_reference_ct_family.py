@@ -349,6 +349,17 @@ def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     assert "is solid, beside 1 marker sphere(s) found" in score.refused
 
 
+def test_a_frame_dimmer_on_its_rim_than_inside_is_not_taken_for_bone_when_no_sphere_is_found():
+    """Family seed 40133 with wide brackets: plastic spheres (139 HU) sunk into a 1,369 HU plate, a 9 mm square bar of
+    2,495 HU resting on a fibula of which 0.9 cm^3 is in view. No sphere is found and no object has a cortex; the
+    plate and bar, rim 22 HU dimmer than their inside, were taken for a bone without a cortex: the IPC was the
+    plate's (29,749 points, none on the bone), exit 0. Now the CT is refused, rightly (under 1.5 cm^3 of bone)."""
+    volume, truth = make_family_ct(40133, "full", overrides=wide_bracket_overrides(40133))
+    image, score = run(volume, truth)
+    assert image is None and score.rightly_refused and score.bone_in_view_mm3 < 1000.0
+    assert "is solid, dimmer on its rim than inside, which no bone is, and no marker sphere was found" in score.refused
+
+
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():
     """Family seed 18066 (full profile, a batch first run in this round): a flat bone whose cancellous inside (595
     HU) is nearly as bright as its 704 HU cortex (rim +48 HU), apart from the reference body (its bracket short of

@@ -13,7 +13,9 @@ brighter than its inside by less than ``bone_recognition.SOLID_CONTRAST_HU``) is
 bracket, not a bone (``solid_body_taken_for_bone``; family seed 16078: a tibia's end wholly outside the round
 field of view, the IPC was the 707 HU star frame's, with exit 0). Beside means within a post's reach of a sphere
 (``SPHERE_REACH_MM``): a flat bone whose cancellous inside is nearly as bright as its cortex (rim +48 HU), 64-92 mm
-from the spheres, is no frame of theirs (family seed 18066 was refused with 46 cm^3 of bone in view).
+from the spheres, is no frame of theirs (family seed 18066 was refused with 46 cm^3 of bone in view). With no
+marker sphere found at all, nothing says where the body is: such an object is refused when its rim is dimmer than its
+inside (``RIM_DIMMER_HU``), which no bone's is.
 """
 
 from dataclasses import dataclass
@@ -36,6 +38,13 @@ MIN_POINTS = 30
 #: A frame holds its spheres on posts: a solid object no sphere centre comes within this far (mm) of is not the
 #: body's frame (posts up to 25 mm long, and the sphere's radius).
 SPHERE_REACH_MM = 35.0
+#: With no marker sphere found, an object taken for bone without a cortex whose rim is dimmer than its inside by more
+#: than this (HU) is refused: a bone's cortex is its brightest layer, a solid frame's rim is its blurred edge. Family
+#: seed 40133 with wide brackets: plastic spheres sunk into a 1,369 HU plate, a 2,495 HU bar resting on 0.9 cm^3 of
+#: fibula in view; the plate (rim -22 HU) was taken for bone and the IPC was its surface (29,749 points, none on the
+#: bone, exit 0). 16078's star frame: -172 HU. A flat bone whose cancellous inside is nearly as bright as its cortex
+#: keeps a rim brighter than it (18066: +48 HU).
+RIM_DIMMER_HU = 0.0
 
 
 @dataclass(frozen=True)
@@ -88,20 +97,27 @@ def describe(found):
 
 def solid_body_taken_for_bone(volume, segmentation, spheres):
     """The refusal's words when the object taken for bone has no cortex and is solid (``is_solid``) in voxels of
-    ``SOLID_MAX_VOXEL_MM`` or finer while the CT shows marker ``spheres`` (any found): the reference body's frame
-    or bracket. None otherwise (a bone with a cortex, coarse voxels that blur a cortex away, no sphere in view)."""
+    ``SOLID_MAX_VOXEL_MM`` or finer, beside marker ``spheres`` (any found), or with its rim dimmer than its inside
+    (``RIM_DIMMER_HU``) when none is found: the reference body's frame or bracket. None otherwise (a bone with a
+    cortex, coarse voxels that blur a cortex away, a solid object far from the spheres)."""
     recognition = segmentation.recognition
-    if recognition is None or not len(spheres) or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
+    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
         return None
     verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
     if verdict is None or verdict.verdict != "bone without a cortex" or not is_solid(verdict.cortex_hu):
         return None
-    if _distance_to_object(volume, segmentation, recognition.label, spheres) > SPHERE_REACH_MM:
+    if not len(spheres):
+        if verdict.cortex_hu >= -RIM_DIMMER_HU:
+            return None
+        beside = "dimmer on its rim than inside, which no bone is, and no marker sphere was found"
+    elif _distance_to_object(volume, segmentation, recognition.label, spheres) > SPHERE_REACH_MM:
         return None
+    else:
+        beside = f"beside {len(spheres)} marker sphere(s) found"
     return (
-        f"no object in the CT has a cortex, and the one taken for bone ({verdict.describe()}) is solid, beside "
-        f"{len(spheres)} marker sphere(s) found: it is the reference body's frame or bracket, so no IPC is written; "
-        "check that the bone is in the field of view and that the threshold is below its cortex (--threshold auto)"
+        f"no object in the CT has a cortex, and the one taken for bone ({verdict.describe()}) is solid, {beside}: it "
+        "is the reference body's frame or bracket, so no IPC is written; check that the bone is in the field of view "
+        "and that the threshold is below its cortex (--threshold auto)"
     )
 
 
