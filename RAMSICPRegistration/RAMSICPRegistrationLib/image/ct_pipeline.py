@@ -85,8 +85,8 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
         ValueError: a bad threshold, or no voxel above it.
         NoBoneSurface: no object in the CT that is plausibly bone, none of its surface away from metal, a bone
             without a cortex that is solid beside marker spheres (or, with none found, dimmer on its rim than
-            inside), or a surface that holds the reference body's
-            marker spheres (``ipc_self_check``; the message says what was found); it holds the marker spheres found.
+            inside), or a surface that holds the reference body's marker spheres (``ipc_self_check``; the message
+            says what was found); it holds the marker spheres found.
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
