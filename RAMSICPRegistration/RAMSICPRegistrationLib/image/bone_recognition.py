@@ -708,8 +708,7 @@ class _ObjectShape:
         MIN_CORE_MM3: a rim brighter than its inside by less than WIDE_SOLID_CONTRAST_HU."""
         if cells.sum() * np.prod(self.cell) < MIN_CORE_MM3:
             return False
-        contrast = self._cortex(cells, self._depth_of(cells))
-        return contrast is not None and contrast < WIDE_SOLID_CONTRAST_HU
+        return is_solid(self._cortex(cells, self._depth_of(cells)), WIDE_SOLID_CONTRAST_HU)
 
     def _apart_from_seeds(self, seeds):
         """What every cut of the object at ``seeds`` starts from: the cells within the seeds' reach (booleans), the
@@ -963,10 +962,10 @@ def _filled(mask, open_sides=(), padding=None):
     return filled
 
 
-def is_solid(contrast):
+def is_solid(contrast, limit_hu=SOLID_CONTRAST_HU):
     """True when a rim ``contrast`` (HU, ``_ObjectShape._cortex``; None without a rim or an inside) is a solid
-    part's: a rim no brighter than its inside (by less than SOLID_CONTRAST_HU)."""
-    return contrast is not None and contrast < SOLID_CONTRAST_HU
+    part's: a rim no brighter than its inside (by less than ``limit_hu``, SOLID_CONTRAST_HU by default)."""
+    return contrast is not None and contrast < limit_hu
 
 
 def _bone_going_on(contrast):
