@@ -40,6 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .components import boxes_and_sizes
 from .morphology import block_max, dilate, dilate_by_cube, unblock
 from .parallel import in_parallel
 from .sphere_candidates import block_means
@@ -171,10 +172,9 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
     Raises:
         ValueError: no object is plausibly bone; the message lists what was found.
     """
-    # Each object's voxel count and box, once: each is a pass over the whole segmentation.
-    slices = ndimage.find_objects(segmentation.labels)
-    labels = segmentation.labels[segmentation.labels > 0]  # the objects' voxels: a few % of the box
-    census = _Census(np.bincount(labels, minlength=len(slices) + 1), slices, {})
+    # Each object's voxel count and box, once: a pass over the whole segmentation, one slab per core.
+    slices, sizes = boxes_and_sizes(segmentation.labels)
+    census = _Census(sizes, slices, {})
     plain = _body_seeds(volume, segmentation, spheres, census, dim_links=False)
     unsure = set() if spheres_sure else {label for label, held in plain.items() if held}
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):

@@ -25,6 +25,7 @@ from . import dim_parts
 from .beyond_metal import beyond_metal
 from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
 from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
+from .components import label_components
 from .envelope import bone_envelope
 from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
@@ -186,9 +187,10 @@ def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
         ValueError: no voxel above the threshold, or an unknown threshold.
     """
     box = region_of_interest(volume)
-    smoothed = volume.voxels[box].astype(np.float32)
-    if denoise_sigma_mm > 0:
-        smoothed = _denoised(smoothed, denoise_sigma_mm / volume.spacing)
+    raw = volume.voxels[box]
+    if raw.dtype.itemsize > 2 or raw.dtype.kind not in "iu":  # values float32 may not hold exactly: as float32 first
+        raw = raw.astype(np.float32)
+    smoothed = _denoised(raw, denoise_sigma_mm / volume.spacing) if denoise_sigma_mm > 0 else raw.astype(np.float32)
     if threshold_hu == "auto":
         body = smoothed[smoothed > -200.0]
         if body.size == 0:
@@ -205,9 +207,7 @@ def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
             f"no voxel is above the threshold of {threshold_hu:.0f} HU (the CT's maximum is "
             f"{float(volume.voxels.max()):.0f} HU); lower the threshold or check that the CT is in HU"
         )
-    labels, count = ndimage.label(foreground)
-    sizes = np.bincount(labels[foreground], minlength=count + 1)  # the foreground only: a few % of the CT
-    sizes[0] = 0
+    labels, count, sizes = label_components(foreground)
     voxel_mm3 = float(np.prod(volume.spacing))
     objects = tuple(int(label) for label in np.flatnonzero(sizes * voxel_mm3 >= MIN_OBJECT_MM3))
     logger.info("threshold %.0f HU: %d objects over %.0f mm^3", threshold_hu, len(objects), voxel_mm3)
@@ -227,14 +227,16 @@ DENOISE_TRUNCATE = 3.0
 
 
 def _denoised(image, sigma):
-    """(I, J, K) float32: ``image`` blurred by a Gaussian of ``sigma`` (3,) voxels, in slabs across the first axis
-    that overlap by the kernel's reach, one per core: the same values as one ``gaussian_filter`` over the whole."""
+    """(I, J, K) float32: ``image`` (float32, or integers float32 holds exactly: the CT's own int16, cast in the
+    slabs) blurred by a Gaussian of ``sigma`` (3,) voxels, in slabs across the first axis that overlap by the
+    kernel's reach, one per core: the same values as one ``gaussian_filter`` over the whole cast to float32 (its
+    first pass reads the values as doubles either way)."""
     reach = int(DENOISE_TRUNCATE * float(sigma[0]) + 0.5)  # gaussian_filter's kernel radius along the axis
     denoised = np.empty(image.shape, dtype=np.float32)
 
     def slab(start, stop):
         low, high = max(start - reach, 0), min(stop + reach, len(image))
-        blurred = ndimage.gaussian_filter(image[low:high], sigma, truncate=DENOISE_TRUNCATE)
+        blurred = ndimage.gaussian_filter(image[low:high], sigma, output=np.float32, truncate=DENOISE_TRUNCATE)
         denoised[start:stop] = blurred[start - low : stop - low]
 
     in_slabs(len(image), slab, min_rows=4 * reach + 4)
