@@ -175,13 +175,14 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
     # Each object's voxel count and box, once: a pass over the whole segmentation, one slab per core.
     slices, sizes = boxes_and_sizes(segmentation.labels)
     census = _Census(sizes, slices, {})
-    plain = _body_seeds(volume, segmentation, spheres, census, dim_links=False)
+    held = _held_by_spheres(volume, segmentation, spheres, census)
+    plain = _body_seeds(volume, segmentation, spheres, census, held, dim_links=False)
     unsure = set() if spheres_sure else {label for label, held in plain.items() if held}
     if not _within_reach_of_dim_parts(volume, segmentation, spheres, plain, census):
         # no object the dim parts could reach but the body's
         return _recognise(volume, segmentation, plain, census, unsure=unsure)
     try:
-        linked = _body_seeds(volume, segmentation, spheres, census)
+        linked = _body_seeds(volume, segmentation, spheres, census, held)
         reached = {label for label, held in linked.items() if held and not plain[label]}  # by the dim parts only
         recognition = _recognise(volume, segmentation, linked, census, reached, unsure)
     except ValueError:
@@ -297,13 +298,27 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
     return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings), has_cortex)
 
 
-def _body_seeds(volume, segmentation, spheres, census, dim_links=True):
+def _body_seeds(volume, segmentation, spheres, census, held, dim_links=True):
     """{label: [(point (3,) RAS, reach mm)]}: where each object is the reference body's for sure.
 
     An object within a sphere's radius and 1 mm of a sphere's centre holds it (a sphere above the threshold, or its
-    bright post); an object the spheres reach through dimmer parts of the body (``_dim_links``: posts or a frame
-    below the threshold) is the body where they meet it.
+    bright post), and one a post stands on (``held``: ``_held_by_spheres``); an object the spheres reach through
+    dimmer parts of the body (``_dim_links``: posts or a frame below the threshold) is the body where they meet it.
     """
+    spheres_held, feet = held
+    seeds = {label: list(points) for label, points in spheres_held.items()}
+    # The spheres' objects (theirs, or their posts'), and those their posts stand on (a dim frame's specks above the
+    # threshold split its dim parts: the dim parts start from each of them too).
+    holding = [label for label, points in seeds.items() if points] + [label for label, _ in feet]
+    links = _dim_links(volume, segmentation, spheres, census.sizes, holding) if dim_links else []
+    for label, point in links + feet:
+        seeds[label].append((point, 1.0))
+    return seeds
+
+
+def _held_by_spheres(volume, segmentation, spheres, census):
+    """({label: [(centre (3,) RAS, reach mm)]}, feet): the objects within a sphere's radius and 1 mm of its centre,
+    and the posts' feet (``_post_feet``: [(label, point)])."""
     seeds = {label: [] for label in range(len(census.sizes))}
     for sphere in spheres:
         reach = sphere.radius_mm + 1.0
@@ -314,14 +329,7 @@ def _body_seeds(volume, segmentation, spheres, census, dim_links=True):
         for label in np.unique(local[inside]):
             if label > 0:
                 seeds[int(label)].append((sphere.centre, reach))
-    feet = _post_feet(volume, segmentation, spheres)
-    # The spheres' objects (theirs, or their posts'), and those their posts stand on (a dim frame's specks above the
-    # threshold split its dim parts: the dim parts start from each of them too).
-    holding = [label for label, held in seeds.items() if held] + [label for label, _ in feet]
-    links = _dim_links(volume, segmentation, spheres, census.sizes, holding) if dim_links else []
-    for label, point in links + feet:
-        seeds[label].append((point, 1.0))
-    return seeds
+    return seeds, _post_feet(volume, segmentation, spheres, len(census.sizes))
 
 
 def _labels_near(volume, segmentation, centre, reach):
@@ -435,16 +443,17 @@ def _dim_links(volume, segmentation, spheres, sizes_all, holding=()):
 MAX_POST_MM = 30.0
 
 
-def _post_feet(volume, segmentation, spheres):
-    """[(label, foot (3,) RAS)]: the objects the spheres' posts stand on. An NDI tool's markers lie in a plane and
-    its posts stand square to it, so from each sphere the way along the plane's normal (either side) that stays
-    brighter than DIM_BODY_HU is its post, whatever its brightness (below, above or about the threshold), and the
-    first object on it other than the sphere's own and the specks of a post about the threshold is its frame."""
+def _post_feet(volume, segmentation, spheres, labels_count):
+    """[(label, foot (3,) RAS)]: the objects the spheres' posts stand on (``labels_count``: the segmentation's
+    highest label and one). An NDI tool's markers lie in a plane and its posts stand square to it, so from each
+    sphere the way along the plane's normal (either side) that stays brighter than DIM_BODY_HU is its post, whatever
+    its brightness (below, above or about the threshold), and the first object on it other than the sphere's own and
+    the specks of a post about the threshold is its frame."""
     if len(spheres) < 3:
         return []
     centres = np.array([sphere.centre for sphere in spheres])
     normal = np.linalg.svd(centres - centres.mean(axis=0))[2][2]
-    objects = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
+    objects = np.zeros(labels_count, dtype=bool)
     objects[list(segmentation.object_labels)] = True
     step = 0.5 * float(volume.spacing.min())
     feet = []
@@ -689,12 +698,14 @@ class _ObjectShape:
         long bone, its first cut with the solid parts' seeds none: the wide one stopped at 9 mm, 77.6 % of the bone
         covered, where the cut without the solid parts' seeds covers 84.5 %)."""
         guard = {"no_bone_on_body": no_bone_on_body, "no_more_bone_on_body": no_more_bone_on_body}
-        apart_from_seeds = self._apart_from_seeds(seeds)
-        verdict, cut = self._cut_off_body(seeds, apart_from_seeds, OPENING_RADII_MM, **guard)
-        if self.depth.max() >= WIDE_OPENING_RADII_MM[0]:
-            wide_verdict, wide_cut = self._cut_off_body(
-                seeds, apart_from_seeds, OPENING_RADII_MM + WIDE_OPENING_RADII_MM, no_bone_on_body=True
-            )
+        start = in_parallel(partial(self._apart_from_seeds, seeds), self._cell_centres_ras)
+        cuts = [partial(self._cut_off_body, seeds, *start, OPENING_RADII_MM, **guard)]
+        if self.depth.max() >= WIDE_OPENING_RADII_MM[0]:  # the wide cut too, at once (it reads what the first does)
+            wide = OPENING_RADII_MM + WIDE_OPENING_RADII_MM
+            cuts.append(partial(self._cut_off_body, seeds, *start, wide, no_bone_on_body=True))
+        (verdict, cut), *wide_cuts = in_parallel(*cuts)
+        if wide_cuts:
+            wide_verdict, wide_cut = wide_cuts[0]
             # A wide cut that stops at a wide opening found only the bone's thickest part before the body's seeds.
             down = wide_cut is not None and wide_cut.opening_mm < WIDE_OPENING_RADII_MM[0]
             if down and (cut is None or self._kept_a_solid_part(cut.bone & ~wide_cut.bone)):
@@ -719,11 +730,13 @@ class _ObjectShape:
         rest = self.filled & ~near_sphere
         return near_sphere, rest, ndimage.distance_transform_edt(rest, sampling=self.cell)
 
-    def _cut_off_body(self, seeds, apart_from_seeds, openings, no_bone_on_body=False, no_more_bone_on_body=False):
-        """``cut_off_body`` with the opening radii ``openings`` (mm, smallest first), from ``_apart_from_seeds``."""
+    def _cut_off_body(
+        self, seeds, apart_from_seeds, cells, openings, no_bone_on_body=False, no_more_bone_on_body=False
+    ):
+        """``cut_off_body`` with the opening radii ``openings`` (mm, smallest first), from ``_apart_from_seeds`` and
+        the cells' centres (``_cell_centres_ras``). It writes none of them, nor the object's arrays."""
         centres = np.array([point for point, _ in seeds]).reshape(-1, 3)
         reaches = np.array([reach for _, reach in seeds]) + float(self.cell.max())
-        cells = self._cell_centres_ras()
         near_sphere, rest, depth = apart_from_seeds
         # The bone's core: at the largest opening that leaves a part far from the body big enough to be a bone. A
         # bracket fixed into a bone is thinner than the bone there, so this opening has cut it.
@@ -934,6 +947,7 @@ class _ObjectShape:
         return squared[0][:, None, None] + squared[1][None, :, None] + squared[2][None, None, :] <= reach_mm**2
 
     def _cell_centres_ras(self):
+        """(I, J, K, 3) RAS mm: the centre of each cell of the object's grid."""
         grid = np.stack(np.meshgrid(*[np.arange(n) for n in self.mask.shape], indexing="ij"), axis=-1)
         ijk = self.segmentation.origin + self.low + (grid + 0.5) * self.block - 0.5
         return self._volume_ijk_to_ras(ijk)

@@ -214,7 +214,7 @@ def threshold_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, denoise_sigma_mm=DEF
     return BoneSegmentation(
         smoothed=smoothed,
         threshold_hu=threshold_hu,
-        labels=labels.astype(np.int32, copy=False),
+        labels=labels,
         bone_label=0,
         object_labels=objects,
         box=box,
@@ -310,7 +310,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     fine = volume.spacing.max() <= HALF_MAX_MAX_VOXEL_MM + 1e-6  # voxels that resolve the cortex
     # A level read as a half-max or given (not the threshold), on such voxels: a cortex's edge.
     resolved = level != "threshold" and fine
-    level = _surface_level(image, mask, segmentation.threshold_hu, level, volume.spacing)
+    # The metal zone (below) depends on nothing else here: measured beside the level.
+    level, metal = in_parallel(
+        partial(_surface_level, image, mask, segmentation.threshold_hu, level, volume.spacing),
+        partial(find_metal_zone, volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin),
+    )
     # The other objects: those the bone's recognition weighed (not specks of noise above the threshold, which the
     # bone's inside may hold, nor clutter too small to be anything).
     objects = np.zeros(int(segmentation.labels.max()) + 1, dtype=bool)
@@ -357,8 +361,11 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # What a metal bracket joins to the bone: its surface goes with the metal's (below). It stays in the mask: a piece
     # of the bone's inside that a pin's edge cuts off is no outside (family seed 25054: wiped, it left 10 IPC points
     # on its walls 6-16 mm inside the bone).
-    joined = beyond_metal(mask, image, volume.spacing) if leave_out_metal else None
-    wire = wires_on_bone(mask, volume.spacing, own=bone[box])  # a wire joined to the bone: another object
+    # And a wire joined to the bone: another object.
+    joined, wire = in_parallel(
+        partial(beyond_metal, mask, image, volume.spacing) if leave_out_metal else _nothing,
+        partial(wires_on_bone, mask, volume.spacing, own=bone[box]),
+    )
     if wire.any():
         mask, other = mask & ~wire, other | wire
     cut_off = wire  # the parts cut off the bone's object: their base stays with it (``CUT_BASE_MM``)
@@ -409,7 +416,6 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # Between the surface level and the threshold, a dim part (a plastic bracket fixed into a bone in air) is
         # kept where it is joined to the bone, two voxels round it: the surface there is the stub's, not the bone's.
         dim |= _on_a_dim_stub(original, vertices_ijk, down, level, segmentation.threshold_hu, volume.spacing)
-    inner = np.zeros(len(vertices_ijk), dtype=bool)
     bone_and_inside = mask
     if fill_cavities:
         # An inner wall left (a cortex too thin to stay above the level all round the inside, a hole a bracket
@@ -418,28 +424,28 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # coarser ones merge bones a few mm apart).
         if fine:
             on_edge = _on_ct_edge(segmentation, low, high, volume)
-            bone_and_inside = mask | _enclosed_along_lines(mask, on_edge, volume.spacing, padding)
             open_sides = _open_sides(segmentation.origin + low, segmentation.origin + high, volume)
-            envelope = bone_envelope(mask, open_sides, volume.spacing, padding)
+            enclosed, envelope = in_parallel(
+                partial(_enclosed_along_lines, mask, on_edge, volume.spacing, padding),
+                partial(bone_envelope, mask, open_sides, volume.spacing, padding),
+            )
+            bone_and_inside = mask | enclosed
             if envelope is not None:
                 bone_and_inside |= envelope
-        inner = _facing_inward(vertices_ijk, down, bone_and_inside, volume.spacing)
-        if inner.any() and fine:
-            # The wall of a hole in the cortex (a dim bracket's) goes on up to the bone's outer surface, where the
-            # envelope does not plug it: its mouth (the surface near the wall along the mesh, facing as it does) goes
-            # too. (On coarser voxels no envelope is made, and a hole's mouth is not resolved.) On the mesh without
-            # the dim part's points, but with the wall's: the wall of a dim bracket's hole may have no cortex under it
-            # either (family seed 14026: without those points the wall left was too small to have a mouth, 21 IPC
-            # points stayed on the bracket, 6 before), and the dim part beside a wall is no mouth (14007: with it,
-            # the mouth was too large to be a hole's, and 23 points on the bracket stayed, 3 before).
-            beside = dim & ~inner
-            kept, kept_triangles = _without_vertices(vertices_ijk, triangles, beside)
-            inner[~beside] |= _mouths(kept, kept_triangles, inner[~beside], down[~beside], volume.spacing)
-    if contrast is not None and fine:
-        # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
-        # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter
-        # by CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's.
-        contacts = dim_parts.dim_parts_at_bone(segmentation.smoothed, bone_and_inside, low, volume.spacing)
+    # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
+    # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter by
+    # CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's. Where those parts are is looked for
+    # beside the inner walls.
+    corners_looked_for = contrast is not None and fine
+    inner, contacts = in_parallel(
+        partial(_inner_walls, vertices_ijk, triangles, down, dim, bone_and_inside, volume.spacing, fine)
+        if fill_cavities
+        else partial(np.zeros, len(vertices_ijk), dtype=bool),
+        partial(dim_parts.dim_parts_at_bone, segmentation.smoothed, bone_and_inside, low, volume.spacing)
+        if corners_looked_for
+        else _nothing,
+    )
+    if corners_looked_for:
         near = np.zeros(len(vertices_ijk), dtype=bool)
         if len(contacts):
             near = _near(vertices_ijk + low, contacts, volume.spacing, dim_parts.MARGIN_MM)
@@ -479,7 +485,6 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
         logger.info("%d IPC points at the edge of the field of view left out", int(capped.sum()))
     origin = segmentation.origin + low  # the crop's first voxel in the CT
-    metal = find_metal_zone(volume, segmentation.smoothed, near=(low, high), origin=segmentation.origin)
     spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
     if joined is not None and joined.any():
         spoilt |= _within(joined, vertices_ijk, volume.spacing, JOINED_MARGIN_VOXELS * float(volume.spacing.max()))
@@ -654,6 +659,31 @@ def _mouths(vertices, triangles, inner, down, spacing):
     mouth = np.zeros(count, dtype=bool)
     mouth[near[facing & hole[wall]]] = True
     return mouth
+
+
+def _inner_walls(vertices, triangles, down, dim, bone_and_inside, spacing, fine):
+    """(M,) booleans: the surface's vertices (M, 3) (indices in the bone's box) on an inner wall left after the
+    cavities were filled (``_facing_inward``: their outside, ``down`` the gradient, is ``bone_and_inside``), and, on
+    voxels that resolve the cortex (``fine``), on the mouth of a hole whose wall it is (``_mouths``). ``dim`` (M,):
+    the vertices on a dim part without a cortex under it."""
+    inner = _facing_inward(vertices, down, bone_and_inside, spacing)
+    if inner.any() and fine:
+        # The wall of a hole in the cortex (a dim bracket's) goes on up to the bone's outer surface, where the envelope
+        # does not plug it: its mouth (the surface near the wall along the mesh, facing as it does) goes too. (On
+        # coarser voxels no envelope is made, and a hole's mouth is not resolved.) On the mesh without the dim part's
+        # points, but with the wall's: the wall of a dim bracket's hole may have no cortex under it either (family
+        # seed 14026: without those points the wall left was too small to have a mouth, 21 IPC points stayed on the
+        # bracket, 6 before), and the dim part beside a wall is no mouth (14007: with it, the mouth was too large to
+        # be a hole's, and 23 points on the bracket stayed, 3 before).
+        beside = dim & ~inner
+        kept, kept_triangles = _without_vertices(vertices, triangles, beside)
+        inner[~beside] |= _mouths(kept, kept_triangles, inner[~beside], down[~beside], spacing)
+    return inner
+
+
+def _nothing():
+    """A step with nothing to do (``in_parallel``'s place for a step not taken)."""
+    return None
 
 
 def _vertex_areas(points, triangles):
