@@ -3,6 +3,8 @@ reference-body CTs (``simulation.reference_ct_family``: spheres from plastic to 
 any HU and thickness, joined to the bone or not, any orientation, 0.3-1 mm voxels, three partial-volume models,
 noise, blur, streaks, fields of view that cut spheres). Each CT is scored against its generator's truth."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -358,6 +360,23 @@ def test_a_frame_dimmer_on_its_rim_than_inside_is_not_taken_for_bone_when_no_sph
     image, score = run(volume, truth)
     assert image is None and score.rightly_refused and score.bone_in_view_mm3 < 1000.0
     assert "is solid, dimmer on its rim than inside, which no bone is, and no marker sphere was found" in score.refused
+
+
+def test_spheres_sunk_into_a_brighter_plate_found_by_their_caps_in_the_ipc_refuse_it():
+    """Family seed 40192 with wide brackets: two 1,037 HU spheres sunk into a 7.7 mm plate of 1,381 HU (their caps
+    1.9 mm high on both sides), two more cut by the field of view, a 15.4 mm bar of 816 HU inserted into a tibia 17 mm
+    thick. No sphere is found and none is tied (no edge of their own, no spot a ball thick in a plate nearly as
+    thick): the plate was taken for bone and the IPC was its surface (23,454 of 23,688 points on the body), exit 0.
+    The IPC itself holds three balls of the marker's size at the tool's distances: it is refused, with their centres
+    (within 0.5 mm of the true ones). 2.7 cm^3 of the tibia is in view, so the benchmark counts the refusal a miss."""
+    volume, truth = make_family_ct(40192, "full", overrides=wide_bracket_overrides(40192))
+    image, score = run(volume, truth)
+    assert image is None and score.ipc_on_body == 0
+    assert "no marker sphere was found, but the surface taken for the bone holds 3 balls" in score.refused
+    centres = np.array(re.findall(r"\((-?\d+), (-?\d+), (-?\d+)\) mm", score.refused), float)
+    assert len(centres) == 3
+    for centre in centres:
+        assert np.linalg.norm(truth.marker_centres - centre, axis=1).min() < 1.0  # printed to the mm
 
 
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():

@@ -13,7 +13,7 @@ import numpy as np
 
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
 from .ipc_self_check import describe as describe_spheres_in_surface
-from .ipc_self_check import solid_body_taken_for_bone, spheres_in_surface
+from .ipc_self_check import describe_unfound, solid_body_taken_for_bone, spheres_in_surface, unfound_spheres_in_surface
 from .marker_spheres import detect_marker_spheres, label_sphere_voxels, usable_spheres
 
 logger = logging.getLogger(__name__)
@@ -85,8 +85,9 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
         ValueError: a bad threshold, or no voxel above it.
         NoBoneSurface: no object in the CT that is plausibly bone, none of its surface away from metal, a bone
             without a cortex that is solid beside marker spheres (or, with none found, dimmer on its rim than
-            inside), or a surface that holds the reference body's marker spheres (``ipc_self_check``; the message
-            says what was found); it holds the marker spheres found.
+            inside), or a surface that holds the reference body's marker spheres (those found, or, with none paired
+            or tied, two balls of their size at the tool's distances: ``ipc_self_check``; the message says what was
+            found); it holds the marker spheres found.
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
@@ -113,6 +114,10 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     on_spheres = spheres_in_surface(surface.points, body_spheres)
     if on_spheres:  # the last word: an IPC that is the reference body's never leaves
         raise NoBoneSurface(describe_spheres_in_surface(on_spheres), detection)
+    if tool_markers is not None and detection.pairing is None and not detection.tied:
+        unfound = unfound_spheres_in_surface(surface.points, surface.triangles, tool_markers)
+        if unfound:  # ... nor one that holds spheres no look at the CT found (sunk into a brighter plate)
+            raise NoBoneSurface(describe_unfound(unfound), detection)
     seconds["surface"] = time.perf_counter() - clock
     spheres = label_sphere_voxels(volume, segmentation, detection.spheres)
     report("bone surface", 3, 3)

@@ -16,6 +16,13 @@ field of view, the IPC was the 707 HU star frame's, with exit 0). Beside means w
 from the spheres, is no frame of theirs (family seed 18066 was refused with 46 cm^3 of bone in view). With no
 marker sphere found at all, nothing says where the body is: such an object is refused when its rim is dimmer than its
 inside (``RIM_DIMMER_HU``), which no bone's is.
+
+With no sphere paired with the tool nor tied by its distances, the IPC is searched for spheres the detector could
+not see (``unfound_spheres_in_surface``): balls of the marker's radius whose surface it holds (``surface_balls``, and
+the coverage above), two or more at one of the tool's pairwise marker distances from each other. Spheres sunk into a
+plate brighter than they are stand out of it as caps on both sides, the object's outer surface (family seed 40192
+with wide brackets: its IPC was the plate's, 23,454 of its 23,688 points on the body, exit 0). A bone has no two
+round ends of the marker's radius at one of the tool's distances.
 """
 
 from dataclasses import dataclass
@@ -23,9 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..core.marker_geometry import PAIRING_TOLERANCE_MM
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .bone_recognition import SOLID_MAX_VOXEL_MM, is_solid
 from .marker_spheres import direction_coverage
+from .surface_balls import find_balls
 
 #: IPC points within this distance (mm) of a sphere's shell (|p - c| - r) are on its surface.
 SHELL_MM = 1.5
@@ -79,6 +88,49 @@ def spheres_in_surface(points, spheres, radius_mm=MARKER_DIAMETER_MM / 2.0):
         if coverage > MAX_COVERAGE:
             found.append(SphereInSurface(int(getattr(sphere, "number", 0)), centre, coverage, len(on_shell)))
     return found
+
+
+def unfound_spheres_in_surface(points, triangles, tool_markers, radius_mm=MARKER_DIAMETER_MM / 2.0):
+    """Marker spheres the IPC holds though no sphere was found there (the module docstring): the balls of
+    ``radius_mm`` on the IPC mesh (``points`` (N, 3) RAS mm, ``triangles`` (T, 3)) whose shell it covers over
+    ``MAX_COVERAGE`` of the directions, when two or more lie within PAIRING_TOLERANCE_MM of one of the pairwise
+    distances of the tool's markers (``tool_markers`` (K, 3) mm). Returns a list of SphereInSurface (number 0) of
+    those at such distances, empty otherwise."""
+    if triangles is None or len(points) == 0:
+        return []
+    balls = [_Ball(centre) for centre in find_balls(points, triangles, radius_mm)]
+    held = spheres_in_surface(points, balls, radius_mm)
+    markers = np.asarray(tool_markers, dtype=np.float64)
+    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
+    at_tool_distances = set()
+    for i, first in enumerate(held):
+        for j in range(i + 1, len(held)):
+            apart = float(np.linalg.norm(first.centre - held[j].centre))
+            if np.abs(distances - apart).min() <= PAIRING_TOLERANCE_MM:
+                at_tool_distances.update((i, j))
+    return [held[i] for i in sorted(at_tool_distances)]
+
+
+@dataclass(frozen=True)
+class _Ball:
+    """A ball found on the IPC, as ``spheres_in_surface`` takes it."""
+
+    centre: np.ndarray
+    number: int = 0
+
+
+def describe_unfound(found):
+    """The refusal's words for ``unfound_spheres_in_surface``'s list."""
+    balls = ", ".join(
+        f"({', '.join(f'{value:.0f}' for value in item.centre)}) mm ({100 * item.coverage:.0f} % of it)"
+        for item in found
+    )
+    return (
+        f"no marker sphere was found, but the surface taken for the bone holds {len(found)} balls of the marker "
+        f"spheres' size at the reference body's distances from one another: {balls}; they are its spheres, sunk into "
+        "its frame or plate, so the object taken for bone is the reference body and no IPC is written: check that "
+        "the bone is in the field of view, or segment the bone by hand"
+    )
 
 
 def describe(found):
