@@ -4,15 +4,15 @@ A marker sphere sunk into a plate brighter than itself shows no edge of its own 
 (``sphere_candidates`` looks for surfaces brighter inward, ``thick_spots`` for spots a ball thick, and a plate nearly
 as thick as the ball is a plateau), but the caps that stand out of the plate on both sides are the object's outer
 surface: when that object is taken for bone, they are in the IPC (family seed 40192 with wide brackets: two
-1,037 HU spheres sunk into a 7.7 mm plate of 1,381 HU, their caps 1.9 mm high, a third cut by the field of view).
+1,037 HU spheres sunk into a 7.7 mm plate of 1,381 HU, their caps 1.9 mm high, two more cut by the field of view).
 
 Each vertex votes one radius along its normal, both ways (the mesh's orientation is not needed); the votes of a
 ball's surface meet at its centre from every direction its surface is seen, while a plate's or a shaft's spread over
-sheets and lines. The votes are counted on a grid of ``GRID_MM`` cells, sparse (only the cells voted for: a pelvis's
-IPC spans 400 mm), summed over each cell's 3 x 3 x 3 neighbourhood; a peak with at least ``MIN_VOTES`` of the count a
-whole ball's surface would give (the surface's own density of vertices) is a ball's centre, at the vote-weighted
-mean of its neighbourhood. Whether the surface holds enough of the ball is for the caller to say
-(``ipc_self_check``).
+sheets and lines. The votes are counted on a grid of ``GRID_MM`` cells, sparse (only the cells voted for: a whole
+bone's IPC spans hundreds of mm), summed over each cell's 3 x 3 x 3 neighbourhood; a peak with at least
+``MIN_VOTES`` of the count a whole ball's surface would give (the surface's own density of vertices), from directions
+that span 3-D and balance along every axis, is a ball's centre, at the vote-weighted mean of its neighbourhood.
+Whether the surface holds enough of the ball is for the caller to say (``ipc_self_check``).
 """
 
 import numpy as np
@@ -30,8 +30,8 @@ MIN_SPREAD = 0.05
 #: ... and they come from both sides along each principal axis of that moment (|mean| over RMS of the directions'
 #: components along it at most this): 0-0.05 for a ball seen whole, on a post or sunk into a plate (its two caps), on
 #: meshes built by hand; 0.25-0.41 where a flat-ended shaft as thick as the ball ends (the ring of its side and its
-#: end's face), 0.74-0.76 at a rod's rounded end (a half ball and the ring next to it). The family's bones' peaks with
-#: enough votes: 0.58-0.84 from one side (their ends).
+#: end's face), 0.74-0.76 at a rod's rounded end (a half ball and the ring next to it). The peaks with enough votes
+#: on the family's bones came from one side (|mean direction| 0.58-0.84: their ends).
 MAX_IMBALANCE = 0.15
 #: At most this many balls, most votes first.
 MAX_BALLS = 16
@@ -45,8 +45,9 @@ def vertex_normals(points, triangles):
     corners = [points[triangles[:, k]] for k in range(3)]
     faces = np.cross(corners[1] - corners[0], corners[2] - corners[0])  # twice the area, along the normal
     normals = np.zeros(points.shape)
-    for k in range(3):
-        np.add.at(normals, triangles[:, k], faces)
+    for axis in range(3):
+        for k in range(3):
+            normals[:, axis] += np.bincount(triangles[:, k], weights=faces[:, axis], minlength=len(points))
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
 
