@@ -6,6 +6,7 @@ import pytest
 
 from RAMSICPRegistrationLib.core.marker_geometry import (
     PAIRING_TOLERANCE_MM,
+    at_pairwise_distances,
     check_marker_centres,
     pair_by_geometry,
     unit_hint,
@@ -105,3 +106,17 @@ def test_duplicated_and_collinear_centres_are_refused():
     with pytest.raises(ValueError, match="NaN"):
         check_marker_centres(np.vstack([markers[:3], [np.nan, 0, 0]]), "markers")
     np.testing.assert_array_equal(check_marker_centres(markers, "markers"), markers)
+
+
+def test_points_at_one_of_the_tools_distances_from_another_are_told_apart_from_the_rest():
+    """Two points 60 mm apart (a distance of the tool's: markers 1 and 4 of 8700339), one 30 mm from both (none of
+    its distances), and a pair 1.5 mm off a distance (inside the 2 mm tolerance) and 2.5 mm off (outside)."""
+    tool = tool_marker_geometry("8700339")
+    distances = np.linalg.norm(tool[:, None] - tool[None], axis=-1)
+    assert abs(distances[0, 3] - 60.0) < 0.01
+    points = np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0], [30.0, 0.0, 0.0]])
+    assert at_pairwise_distances(points, tool) == [0, 1]
+    assert at_pairwise_distances(points[[0, 2]], tool) == []
+    assert at_pairwise_distances([[0, 0, 0], [0, 61.5, 0]], tool) == [0, 1]
+    assert at_pairwise_distances([[0, 0, 0], [0, 62.5, 0]], tool) == []
+    assert at_pairwise_distances(np.zeros((0, 3)), tool) == []

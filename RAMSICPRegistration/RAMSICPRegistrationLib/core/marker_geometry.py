@@ -190,6 +190,21 @@ def pair_by_geometry(
     return best
 
 
+def at_pairwise_distances(points, reference, tolerance_mm=PAIRING_TOLERANCE_MM):
+    """Sorted indices of the ``points`` (N, 3) mm that lie within ``tolerance_mm`` of one of the pairwise distances
+    of the ``reference`` markers (K, 3) mm from another of the points: two of its markers, even where too few are
+    seen to pair them (``pair_by_geometry`` needs 3)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    markers = np.asarray(reference, dtype=np.float64)
+    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
+    found = set()
+    for i in range(len(points)):
+        for j in range(i + 1, len(points)):
+            if np.abs(distances - float(np.linalg.norm(points[i] - points[j]))).min() <= tolerance_mm:
+                found.update((i, j))
+    return sorted(found)
+
+
 def unit_hint(points, reference):
     """' (the file looks to be in metres)' and the like when the measured scale is a unit off the reference's,
     else ''. Compares the median inter-marker distance of each set."""

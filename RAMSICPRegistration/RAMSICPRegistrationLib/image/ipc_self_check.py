@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..core.marker_geometry import PAIRING_TOLERANCE_MM
+from ..core.marker_geometry import at_pairwise_distances
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .bone_recognition import SOLID_MAX_VOXEL_MM, is_solid
 from .marker_spheres import direction_coverage
@@ -100,15 +100,7 @@ def unfound_spheres_in_surface(points, triangles, tool_markers, radius_mm=MARKER
         return []
     balls = [_Ball(centre) for centre in find_balls(points, triangles, radius_mm)]
     held = spheres_in_surface(points, balls, radius_mm)
-    markers = np.asarray(tool_markers, dtype=np.float64)
-    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
-    at_tool_distances = set()
-    for i, first in enumerate(held):
-        for j in range(i + 1, len(held)):
-            apart = float(np.linalg.norm(first.centre - held[j].centre))
-            if np.abs(distances - apart).min() <= PAIRING_TOLERANCE_MM:
-                at_tool_distances.update((i, j))
-    return [held[i] for i in sorted(at_tool_distances)]
+    return [held[i] for i in at_pairwise_distances([item.centre for item in held], tool_markers)]
 
 
 @dataclass(frozen=True)

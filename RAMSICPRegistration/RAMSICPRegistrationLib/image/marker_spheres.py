@@ -48,7 +48,7 @@ import numpy as np
 from scipy import ndimage, optimize, sparse
 from scipy.sparse import csgraph
 
-from ..core.marker_geometry import PAIRING_TOLERANCE_MM, pair_by_geometry
+from ..core.marker_geometry import PAIRING_TOLERANCE_MM, at_pairwise_distances, pair_by_geometry
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .sphere_candidates import find_sphere_candidates
 from .thick_spots import thick_spots
@@ -318,15 +318,8 @@ def _tied_by_tool_distances(spheres, tool_markers):
     distance from a sphere of the marker's size), even when they cannot be numbered (fewer than 3 in view, or sunk
     into the frame)."""
     round_ones = [sphere for sphere in spheres if _is_round(sphere)]
-    markers = np.asarray(tool_markers, float)
-    distances = np.linalg.norm(markers[:, None] - markers[None], axis=-1)[np.triu_indices(len(markers), 1)]
-    tied = set()
-    for i, first in enumerate(round_ones):
-        for j in range(i + 1, len(round_ones)):
-            apart = float(np.linalg.norm(first.centre - round_ones[j].centre))
-            if np.abs(distances - apart).min() <= PAIRING_TOLERANCE_MM:
-                tied.update((i, j))
-    return tuple(round_ones[i] for i in sorted(tied))
+    tied = at_pairwise_distances([sphere.centre for sphere in round_ones], tool_markers)
+    return tuple(round_ones[i] for i in tied)
 
 
 def sphere_warning(sphere):
