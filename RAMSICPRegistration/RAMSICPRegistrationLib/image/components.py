@@ -71,7 +71,7 @@ def label_components(foreground):
     def renumber(s):
         start, stop = starts[s], int(cuts[s + 1])
         slab_lookup = lookup[offsets[s] : offsets[s] + counts[start] + 1].copy()
-        slab_lookup[0] = 0  # (the previous slab's last piece)
+        slab_lookup[0] = 0  # the background (the slice starts at the slab before's last piece)
         if not np.array_equal(slab_lookup, np.arange(len(slab_lookup))):  # the first slab's often is
             inside = foreground[start:stop]
             labels[start:stop][inside] = slab_lookup[labels[start:stop][inside]]
