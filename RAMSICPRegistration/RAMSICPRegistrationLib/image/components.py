@@ -9,13 +9,11 @@ pieces by their first voxels, so a component's first voxel is that of its lowest
 numbers, offset slab by slab, sorted by the lowest of each component, give ``label``'s numbering.
 """
 
-from functools import partial
-
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
-from .parallel import cores, in_parallel
+from .parallel import in_slabs, slab_cuts
 
 #: A slab holds at least this many rows: thinner ones are not worth their joins.
 MIN_SLAB_ROWS = 16
@@ -29,7 +27,7 @@ def label_components(foreground):
         count, and sizes (count + 1,) int64 voxels per label (0 for the background).
     """
     length = len(foreground)
-    cuts = _slab_cuts(length)
+    starts = [int(start) for start in slab_cuts(length, MIN_SLAB_ROWS)[:-1]]
     labels = np.empty(foreground.shape, dtype=np.int32)
     counts, piece_sizes = {}, {}
 
@@ -39,8 +37,7 @@ def label_components(foreground):
         pieces = labels[start:stop][foreground[start:stop]]
         piece_sizes[start] = np.bincount(pieces, minlength=counts[start] + 1)[1:]
 
-    starts = [int(start) for start in cuts[:-1]]
-    in_parallel(*[partial(label_slab, start, int(stop)) for start, stop in zip(starts, cuts[1:])])
+    in_slabs(length, label_slab, MIN_SLAB_ROWS)
     offsets = np.cumsum([0] + [counts[start] for start in starts])
     total = int(offsets[-1])
     # The pieces' numbers, offset slab by slab: piece p of the slab from starts[s] is offsets[s] + p.
@@ -68,8 +65,8 @@ def label_components(foreground):
     else:
         count = 0
 
-    def renumber(s):
-        start, stop = starts[s], int(cuts[s + 1])
+    def renumber(start, stop):
+        s = starts.index(start)
         slab_lookup = lookup[offsets[s] : offsets[s] + counts[start] + 1].copy()
         slab_lookup[0] = 0  # the background (the slice starts at the slab before's last piece)
         if not np.array_equal(slab_lookup, np.arange(len(slab_lookup))):  # the first slab's often is
@@ -77,7 +74,7 @@ def label_components(foreground):
             labels[start:stop][inside] = slab_lookup[labels[start:stop][inside]]
 
     if len(starts) > 1:  # one slab is numbered as ``label`` numbers it already
-        in_parallel(*[partial(renumber, s) for s in range(len(starts))])
+        in_slabs(length, renumber, MIN_SLAB_ROWS)
     sizes[0] = 0
     return labels, int(count), sizes
 
@@ -89,13 +86,13 @@ def boxes_and_sizes(labels):
         boxes: list (one per label 1..max) of 3 slices, None for a label not present (``ndimage.find_objects``),
         and sizes (max + 1,) int64 voxels per label (0 for the background).
     """
-    cuts = _slab_cuts(len(labels))
 
     def look(start, stop):
         slab = labels[start:stop]
         return ndimage.find_objects(slab), np.bincount(slab[slab > 0])
 
-    found = in_parallel(*[partial(look, int(start), int(stop)) for start, stop in zip(cuts[:-1], cuts[1:])])
+    found = in_slabs(len(labels), look, MIN_SLAB_ROWS)
+    starts = slab_cuts(len(labels), MIN_SLAB_ROWS)[:-1]
     count = max(len(slab_boxes) for slab_boxes, _ in found)  # the highest label
     found = [(slab_boxes + [None] * (count - len(slab_boxes)), slab_sizes) for slab_boxes, slab_sizes in found]
     sizes = np.zeros(count + 1, dtype=np.int64)
@@ -104,7 +101,7 @@ def boxes_and_sizes(labels):
     sizes[0] = 0
     boxes = []
     for label in range(count):
-        parts = [(start, slab_boxes[label]) for start, (slab_boxes, _) in zip(cuts, found) if slab_boxes[label]]
+        parts = [(start, slab_boxes[label]) for start, (slab_boxes, _) in zip(starts, found) if slab_boxes[label]]
         if not parts:
             boxes.append(None)
             continue
@@ -113,8 +110,3 @@ def boxes_and_sizes(labels):
         rest = [slice(min(box[a].start for _, box in parts), max(box[a].stop for _, box in parts)) for a in (1, 2)]
         boxes.append((slice(int(first), int(last)), *rest))
     return boxes, sizes
-
-
-def _slab_cuts(length):
-    """The rows where the slabs start, and ``length``: one slab per core, of MIN_SLAB_ROWS rows at least."""
-    return np.linspace(0, length, min(cores(), max(1, length // MIN_SLAB_ROWS)) + 1).astype(int)

@@ -48,12 +48,18 @@ def in_parallel(*steps):
         wait(futures)
 
 
-def in_slabs(length, work, min_rows=1):
-    """Run ``work(start, stop)`` over slabs of rows ``start:stop`` that cut ``range(length)`` into one slab per core
-    (fewer when a slab would hold under ``min_rows`` rows), with ``in_parallel``."""
+def slab_cuts(length, min_rows=1):
+    """(S + 1,) ints: where the slabs of ``in_slabs`` start, and ``length``: ``range(length)`` cut into one slab per
+    core, fewer when a slab would hold under ``min_rows`` rows."""
     count = min(cores(), max(1, length // max(min_rows, 1)))
-    cuts = np.linspace(0, length, count + 1).astype(int)
-    in_parallel(*[partial(work, int(start), int(stop)) for start, stop in zip(cuts[:-1], cuts[1:])])
+    return np.linspace(0, length, count + 1).astype(int)
+
+
+def in_slabs(length, work, min_rows=1):
+    """The results of ``work(start, stop)`` over the slabs of rows ``start:stop`` of ``slab_cuts(length, min_rows)``,
+    in their order, with ``in_parallel``."""
+    cuts = slab_cuts(length, min_rows)
+    return in_parallel(*[partial(work, int(start), int(stop)) for start, stop in zip(cuts[:-1], cuts[1:])])
 
 
 def _run_in_worker(step):
