@@ -379,6 +379,21 @@ def test_spheres_sunk_into_a_brighter_plate_found_by_their_caps_in_the_ipc_refus
         assert np.linalg.norm(truth.marker_centres - centre, axis=1).min() < 1.0  # printed to the mm
 
 
+@pytest.mark.parametrize("seed, covered", [(40245, 0.85), (40248, 0.95)])
+def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_by_its_material(seed, covered):
+    """Wide seeds 40245 (a 15.8 mm bar of 670 HU resting on a flat bone 17.6 mm thick, cortex 849 HU, inside 508 HU)
+    and 40248 (a 384 HU star frame on a 17.9 mm rod of 2,096 HU inserted into a flat bone 19.9 mm thick). No opening
+    parts a bracket 0.9 of the bone's thickness from it: the cut kept the bar, or the rod and the frame's end, with the
+    bone, and the IPC had 6,856 and 3,402 points on them (40248's was the rod's: none of the bone covered), exit 0.
+    The body is now followed by its material into what the cut kept: the bar's plateau (670 HU), the frame's (384 HU)
+    and then the rod's (2,098 HU). Measured: no point on the body, 88.6 % and 96.7 % of the bone covered."""
+    volume, truth = make_family_ct(seed, "full", overrides=wide_bracket_overrides(seed))
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= covered
+    assert image.segmentation.body_followed.any()
+
+
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():
     """Family seed 18066 (full profile, a batch first run in this round): a flat bone whose cancellous inside (595
     HU) is nearly as bright as its 704 HU cortex (rim +48 HU), apart from the reference body (its bracket short of

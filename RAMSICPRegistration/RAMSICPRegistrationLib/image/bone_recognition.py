@@ -17,7 +17,10 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    part of it, the opening tells it too: a **solid** part (its rim no brighter than its inside: a frame, a
    bracket) that falls apart from a part with a cortex is the body's, and so is a solid part that the bone's core,
    as the openings shrink, grows far from the bone kept so far (a frame the seeds miss, or thinner than the bracket
-   that joins it: no opening splits it off; with no sphere anywhere, the bone's core alone is grown). Where the
+   that joins it: no opening splits it off; with no sphere anywhere, the bone's core alone is grown). A bracket
+   nearly as thick as the bone is not parted from it by any opening: the body is then **followed by its material**
+   into what the cut kept (``body_material``: a bracket's or a frame's inside is a plateau of one brightness that
+   goes on across the cut; a bone's inside is one too, but its cortex surrounds it). Where the
    body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a bracket's
    round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a cortex round
    its inside on the body's side (for tied spheres: larger than the bone kept) is no cut.
@@ -40,6 +43,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
+from .body_material import BAND_HU, levels_among, plateau
 from .components import boxes_and_sizes
 from .morphology import block_max, dilate, dilate_by_cube, unblock
 from .parallel import in_parallel
@@ -104,6 +108,23 @@ MAX_CORES = 4
 SOLID_SEEDS = 40
 #: At most this many objects (the largest) are looked at.
 MAX_OBJECTS = 12
+#: The body is followed by its material (``body_material``) into the bone a cut kept: the levels are read among the
+#: bone's cells at least MATERIAL_DEEP_MM under the object's surface (out of the blur) and within MATERIAL_LEVELS_MM of
+#: the body; a plateau is taken when it comes within MATERIAL_TOUCH_MM of the body (the blur between two materials,
+#: which no plateau holds, lies between them), at most MATERIAL_STEPS times (a frame, then its bracket).
+MATERIAL_DEEP_MM = 2.0
+MATERIAL_LEVELS_MM = 8.0
+MATERIAL_TOUCH_MM = 3.0
+MATERIAL_STEPS = 3
+#: ... and a plateau taken takes the cells round it this deep (cells along the grid's axes) too: the blur at its edge.
+MATERIAL_BLUR_CELLS = 2
+#: A plateau the bone left surrounds (outside it, less than this fraction of the ring MATERIAL_RING_MM round it) and no
+#: darker than that ring is the bone's inside (its marrow or cancellous bone under the cortex), not the body's. In the
+#: wide CTs 40002, 40197, 40245 and 40248, the brackets' and frames' plateaus had 0.13-0.47 of their ring outside the
+#: bone (40248's rod, inserted, none, but its ring 650 HU darker than it); the bones' insides 0.00-0.01, their ring
+#: 133-148 HU brighter (the cortex).
+MATERIAL_OPEN_FRACTION = 0.1
+MATERIAL_RING_MM = 2.5
 
 
 @dataclass(frozen=True)
@@ -144,7 +165,9 @@ class ObjectVerdict:
 class BoneRecognition:
     """The bone's ``label``; ``body``: booleans over the segmentation's box of the reference body's voxels in the
     bone's object (None when the body is apart), with ``body_margin_mm``; ``objects``: an ObjectVerdict each;
-    ``warnings``; ``has_cortex``: False when no object had a cortex and the bone was taken without one."""
+    ``warnings``; ``has_cortex``: False when no object had a cortex and the bone was taken without one;
+    ``body_followed``: the voxels of ``body`` its material took from what the opening kept with the bone (None when
+    none: ``_ObjectShape._follow_body_material``)."""
 
     label: int
     body: np.ndarray
@@ -152,6 +175,7 @@ class BoneRecognition:
     objects: tuple
     warnings: tuple = ()
     has_cortex: bool = True
+    body_followed: np.ndarray = None
 
 
 def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
@@ -294,8 +318,9 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
         with_cortex = found
     verdict, cut, shape = max(with_cortex, key=lambda entry: entry[0].volume_mm3)
     body, margin = (None, 0.0) if cut is None else (shape.body_in_box(cut), cut.margin_mm)
+    followed = None if cut is None or cut.followed is None else shape.cells_in_box(cut.followed) & body
     logger.info("bone: object %d (%s)", verdict.label, verdict.describe())
-    return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings), has_cortex)
+    return BoneRecognition(verdict.label, body, margin, tuple(verdicts), tuple(warnings), has_cortex, followed)
 
 
 def _body_seeds(volume, segmentation, spheres, census, held, dim_links=True):
@@ -501,11 +526,14 @@ def _labels_at(volume, segmentation, points):
 @dataclass(frozen=True)
 class _Cut:
     """The bone's part of an object that also holds the body: ``bone`` cells on the object's grid, the margin (mm)
-    round the body within which IPC points are left out, and the opening (mm) that cut it."""
+    round the body within which IPC points are left out, and the opening (mm) that cut it; ``followed``: the cells
+    the body's material took from what the opening kept (``_follow_body_material``: their edge is the plateau's,
+    not the opening's, and needs a narrower margin, ``ct_segmentation.FOLLOWED_MARGIN_MM``), or None."""
 
     bone: np.ndarray
     margin_mm: float
     opening_mm: float
+    followed: np.ndarray = None
 
 
 class _ObjectShape:
@@ -712,7 +740,62 @@ class _ObjectShape:
                 verdict, cut = wide_verdict, wide_cut
         if cut is not None:
             logger.info("reference body cut off the bone by an opening of %.1f mm", cut.opening_mm)
+            followed = self._follow_body_material(cut)
+            if followed is not cut:
+                verdict, cut = self.verdict(0, followed.bone, self._depth_of(followed.bone)), followed
         return verdict, cut
+
+    def _follow_body_material(self, cut):
+        """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
+        nearly as thick as the bone, which no opening parts from it), or the cut itself when no plateau is the body's.
+        A plateau taken moves the cut: the next one (a frame's, then its bracket's) is read from there."""
+        bone = cut.bone
+        for _ in range(MATERIAL_STEPS):
+            body = self.filled & ~bone
+            to_body = self._distance_to(body, MATERIAL_LEVELS_MM)
+            deep = bone & (self.depth >= MATERIAL_DEEP_MM)
+            seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
+            taken = None
+            for level in levels_among(self.mean_hu, deep & (to_body <= MATERIAL_LEVELS_MM)):
+                part = plateau(self.mean_hu, bone, level, seeds)
+                if self._is_the_bodys(part, bone & ~part, level):
+                    taken = part
+                    break
+            if taken is None:
+                break
+            # With the blur round the plateau (its edge, between its level and what it meets), a cell or two; but
+            # what the rest of the bone encloses (a bracket's end inserted into it) stays with the bone: it adds no
+            # surface, and taken away it would cost the bone's surface round it.
+            taken = dilate(taken, MATERIAL_BLUR_CELLS, within=bone)
+            taken &= ~_filled(bone & ~taken, self._open_sides, self._padding)
+            if not taken.any():
+                break
+            logger.info(
+                "the body followed into the bone kept by its material of %.0f HU: %.0f mm^3",
+                level,
+                taken.sum() * np.prod(self.cell),
+            )
+            bone = bone & ~taken
+        if bone is cut.bone:
+            return cut
+        return _Cut(bone, cut.margin_mm, cut.opening_mm, followed=cut.bone & ~bone)
+
+    def _is_the_bodys(self, part, rest, level):
+        """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
+        MIN_CORE_MM3, solid (``is_solid``: a rim no brighter than its inside), smaller than the ``rest`` of the bone,
+        which is bone still (a cortex), and not the bone's inside, which the rest surrounds (less than
+        MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker
+        than the part."""
+        if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
+            return False
+        if not is_solid(self._cortex(part, self._depth_of(part))):
+            return False
+        ring = self._within(part, MATERIAL_RING_MM) & ~part
+        in_rest = ring & rest
+        enclosed = in_rest.sum() > (1.0 - MATERIAL_OPEN_FRACTION) * ring.sum()
+        if enclosed and np.median(self.mean_hu[in_rest]) >= level - BAND_HU:
+            return False
+        return self.verdict(0, rest, self._depth_of(rest)).verdict == "bone"
 
     def _kept_a_solid_part(self, cells):
         """True when ``cells`` (what one cut kept with the bone and another did not) make a solid part of at least
@@ -930,11 +1013,14 @@ class _ObjectShape:
     def body_in_box(self, cut):
         """Booleans over the segmentation's box: the object's voxels on the body's side of the cut (the cells of
         the object not in the bone's part, and the half-empty cells along their surface)."""
-        body = dilate(self.filled & ~cut.bone) & ~cut.bone
-        cells = unblock(body, self.block, tuple(self.high - self.low))
+        return self.cells_in_box(dilate(self.filled & ~cut.bone) & ~cut.bone)
+
+    def cells_in_box(self, cells):
+        """Booleans over the segmentation's box: the object's voxels in ``cells`` (booleans over the grid)."""
+        voxels = unblock(cells, self.block, tuple(self.high - self.low))
         box = tuple(slice(a, b) for a, b in zip(self.low, self.high))
         whole = np.zeros(self.segmentation.labels.shape, dtype=bool)
-        whole[box] = (self.segmentation.labels[box] == self.label) & cells
+        whole[box] = (self.segmentation.labels[box] == self.label) & voxels
         return whole
 
     def _ball(self, centre, reach_mm):

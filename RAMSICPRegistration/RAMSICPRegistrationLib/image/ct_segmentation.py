@@ -66,7 +66,11 @@ class BoneSegmentation:
         object_labels: labels of the other components larger than MIN_OBJECT_MM3.
         box: 3 slices into the CT's voxels; ``volume_shape`` the CT's shape.
         body: (I', J', K') booleans of the reference body's voxels in the bone's component (a bracket joins them),
-            or None; IPC points within ``body_margin_mm`` of them are left out.
+            or None; IPC points within ``body_margin_mm`` of those an opening cut off are left out.
+        body_followed: (I', J', K') booleans, the voxels of ``body`` its material took from what the opening kept
+            with the bone (``bone_recognition``), or None; their edge is a plateau's, and IPC points within
+            FOLLOWED_MARGIN_MM of them are left out. Only the IPC's making reads them: a cached result
+            (``image_side_cache``) has None.
         recognition: the ``bone_recognition.BoneRecognition`` (what each object was taken for, and why).
     """
 
@@ -80,11 +84,18 @@ class BoneSegmentation:
     body: np.ndarray = None
     body_margin_mm: float = 0.0
     recognition: object = None
+    body_followed: np.ndarray = None
 
     @property
     def origin(self):
         """(3,) index of the box's first voxel in the CT."""
         return np.array([0, 0, 0] if self.box is None else [s.start for s in self.box])
+
+    def body_cut_off(self):
+        """(I', J', K') booleans, the voxels of ``body`` an opening cut off (without ``body_followed``), or None."""
+        if self.body is None or self.body_followed is None:
+            return self.body
+        return self.body & ~self.body_followed
 
     def bone_mask_in_box(self):
         """(I', J', K') booleans of the bone over ``box``: its component without the reference body's voxels."""
@@ -173,6 +184,7 @@ def with_bone(volume, segmentation, spheres, spheres_sure=True):
         body=recognition.body,
         body_margin_mm=recognition.body_margin_mm,
         recognition=recognition,
+        body_followed=recognition.body_followed,
     )
 
 
@@ -373,9 +385,9 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if segmentation.body is not None:  # the bracket's stub the cut left on the bone (filled) is the body's too
         # A long stub (the cut went through the bracket far from the bone) is the body's before its line is read:
         # the line then runs from the bracket's true end into the bone.
-        body_in_box = segmentation.body[box]
+        body = segmentation.body_cut_off()  # a plateau the body's material took has no stub: its edge is exact
+        body_in_box = body[box]
         rod = rod_stub(mask, body_in_box, volume.spacing, segmentation.smoothed[box])
-        body = segmentation.body
         if rod.any():
             body = body.copy()
             body[box] |= rod
@@ -545,6 +557,11 @@ JOINED_MARGIN_VOXELS = 2.0
 #: and 19089: 18 and 32 IPC points on a 5.7 and a 10.8 mm bracket, 1.0-2.6 and 0.7-2.1 mm from the part cut off;
 #: the bone loses 57 and 292 points within 3 mm of it.
 CUT_BASE_MM = 3.0
+#: IPC points within this (mm) of the body's voxels its material took from what an opening kept with the bone
+#: (``BoneSegmentation.body_followed``) are left out: the edge of a plateau, a cell of the recognition's grid, and the
+#: corner the blur fills where it meets the bone (wide seed 40254: a 10.5 mm bar of 2,251 HU resting on a flat bone
+#: left 24 points there without it).
+FOLLOWED_MARGIN_MM = 2.5
 
 
 def outside_reconstruction(voxels):
@@ -1087,7 +1104,10 @@ def _next_to_body(volume, segmentation, vertices_ijk):
     the reference body joined to the bone (its bracket's stub, and the corner the blur fills round it)."""
     if segmentation.body is None:
         return np.zeros(len(vertices_ijk), dtype=bool)
-    return _within(segmentation.body, vertices_ijk, volume.spacing, segmentation.body_margin_mm)
+    near = _within(segmentation.body_cut_off(), vertices_ijk, volume.spacing, segmentation.body_margin_mm)
+    if segmentation.body_followed is not None:
+        near |= _within(segmentation.body_followed, vertices_ijk, volume.spacing, FOLLOWED_MARGIN_MM)
+    return near
 
 
 def _within(voxels, vertices_ijk, spacing, margin):

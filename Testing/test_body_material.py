@@ -1,0 +1,77 @@
+"""Plateaus of one material (``image.body_material``): the levels read among cells and the plateau that reaches the
+body, on grids whose materials, blur and noise are known."""
+
+import numpy as np
+from scipy import ndimage
+
+from RAMSICPRegistrationLib.image.body_material import BAND_HU, MIN_LEVEL_CELLS, levels_among, plateau
+
+#: A flat bone resting under a bar, on a grid of 1 mm cells: the bone's cortex (2 cells) round its inside, the bar on
+#: its upper cortex, and air round both.
+CORTEX_HU, INSIDE_HU, BAR_HU, AIR_HU = 850.0, 500.0, 670.0, -1000.0
+
+
+def bar_on_a_flat_bone(noise_hu=0.0, seed=0):
+    """(mean_hu (40, 30, 40), bone, bar, inside): a 16-cell bar lying along a flat bone 18 cells thick, blurred by
+    0.6 cells as a CT's block means are, with ``noise_hu`` of white noise."""
+    grid = np.full((40, 30, 40), AIR_HU)
+    bone = np.zeros(grid.shape, dtype=bool)
+    bone[2:38, 2:28, 2:20] = True
+    inside = np.zeros(grid.shape, dtype=bool)
+    inside[4:36, 4:26, 4:18] = True
+    bar = np.zeros(grid.shape, dtype=bool)
+    bar[12:28, 2:28, 20:36] = True  # resting on the bone's upper side, as long as the bone is wide
+    grid[bone] = CORTEX_HU
+    grid[inside] = INSIDE_HU
+    grid[bar] = BAR_HU
+    grid = ndimage.gaussian_filter(grid, 0.6)
+    grid += np.random.default_rng(seed).normal(0.0, noise_hu, grid.shape)
+    return grid.astype(np.float32), bone, bar, inside
+
+
+def test_the_levels_are_the_materials_most_common_first_and_not_the_blur_between_them():
+    grid, bone, bar, inside = bar_on_a_flat_bone(noise_hu=10.0)
+    levels = levels_among(grid, bone | bar)
+    # the bone's inside has the most cells, then the bar; the cortex, 2 cells thick, is all blur
+    assert len(levels) == 2
+    assert abs(levels[0] - INSIDE_HU) < 5.0 and abs(levels[1] - BAR_HU) < 5.0
+    ramp = np.linspace(0.0, 2000.0, 40, dtype=np.float32)[:, None, None] * np.ones((1, 10, 10), np.float32)
+    within = np.zeros(ramp.shape, dtype=bool)
+    within[1:-1] = True  # (at the grid's ends the neighbourhood is cut)
+    assert levels_among(ramp, within) == []  # 51 HU a cell: nothing flat enough ...
+    gentle = ramp / 40.0  # 1.3 HU a cell
+    assert len(levels_among(gentle, np.ones(gentle.shape, dtype=bool))) == 1  # ... but this is one material
+
+
+def test_a_level_needs_enough_flat_cells_and_levels_stand_apart():
+    grid = np.full((12, 12, 12), 300.0, dtype=np.float32)
+    grid[:, :, 6:] = 300.0 + 0.5 * BAND_HU  # two levels closer than the band: read as one
+    levels = levels_among(grid, np.ones(grid.shape, dtype=bool))
+    assert len(levels) == 1 and 300.0 <= levels[0] <= 300.0 + 0.5 * BAND_HU
+    few = np.zeros(grid.shape, dtype=bool)
+    few[5, 5, : MIN_LEVEL_CELLS - 1] = True
+    assert levels_among(grid, few) == []
+
+
+def test_the_bars_plateau_is_the_bar_and_not_the_bone_it_rests_on():
+    for seed in range(3):
+        grid, bone, bar, inside = bar_on_a_flat_bone(noise_hu=15.0, seed=seed)
+        seeds = np.zeros(grid.shape, dtype=bool)
+        seeds[14:26, 20:23, 24:32] = True  # cells across the bar, where a cut ran through it
+        found = plateau(grid, bone | bar, BAR_HU, seeds)
+        assert (found & bone).sum() == 0  # not a cell of the cortex or the inside
+        # the bar less the blur at its edge (a cell or two), and no more
+        core = ndimage.binary_erosion(bar, iterations=2)
+        assert (found & core).sum() == core.sum() and found.sum() <= bar.sum()
+
+
+def test_the_bones_inside_is_a_plateau_of_its_own_that_the_bars_does_not_reach():
+    grid, bone, bar, inside = bar_on_a_flat_bone()
+    seeds = np.zeros(grid.shape, dtype=bool)
+    seeds[14:26, 20:23, 24:32] = True
+    assert not plateau(grid, bone | bar, INSIDE_HU, seeds).any()  # the inside does not reach the bar's seeds
+    inner = np.zeros(grid.shape, dtype=bool)
+    inner[20, 15, 10] = True
+    found = plateau(grid, bone | bar, INSIDE_HU, inner)
+    assert (found & ~inside).sum() == 0 and found.sum() >= ndimage.binary_erosion(inside).sum()
+    assert not plateau(grid, np.zeros(grid.shape, dtype=bool), BAR_HU, seeds).any()  # nothing among no cells
