@@ -121,7 +121,7 @@ class MeshSolid:
         samples, normals, tree = _mesh_samples(self.name)
         shape = points.shape[:-1]
         local = self._local(np.asarray(points, float).reshape(-1, 3))
-        distance, nearest = tree.query(local)
+        distance, nearest = tree.query(local, workers=-1)  # one query per point: the same answers on any cores
         plane = np.einsum("ij,ij->i", local - samples[nearest], normals[nearest])
         # Beyond a few sample spacings the tangent plane of the nearest sample no longer measures the distance.
         far = distance > 1.0
