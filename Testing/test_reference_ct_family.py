@@ -394,6 +394,16 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_by_its_material(seed,
     assert image.segmentation.body_followed.any()
 
 
+def test_a_thick_cortex_is_not_followed_as_the_bodys_material():
+    """Family seed 12094 (full profile): a long bone whose 1,334 HU cortex is thick enough to be a plateau of its own
+    (solid, a third of its ring outside the bone), an 11.1 mm bracket of 429 HU inserted into it. A first form of the
+    body's following took the cortex for the body's material and the tibia was refused; a plateau whose cavities hold
+    the bone left is its cortex. Measured: 99.1 % of the bone covered, none of the IPC on the body, as before."""
+    volume, truth = make_family_ct(12094, "full")
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.coverage >= 0.95
+
+
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():
     """Family seed 18066 (full profile, a batch first run in this round): a flat bone whose cancellous inside (595
     HU) is nearly as bright as its 704 HU cortex (rim +48 HU), apart from the reference body (its bracket short of

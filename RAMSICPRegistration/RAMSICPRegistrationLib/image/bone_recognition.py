@@ -125,6 +125,10 @@ MATERIAL_BLUR_CELLS = 2
 #: 133-148 HU brighter (the cortex).
 MATERIAL_OPEN_FRACTION = 0.1
 MATERIAL_RING_MM = 2.5
+#: A plateau whose cavities (filled) are more than this share of its own cells is a shell: the bone's cortex round its
+#: inside, solid where it is thick (family seed 12094: a long bone's 1,334 HU cortex, its cavity 0.49 of it, was taken
+#: for the body and the tibia refused).
+MATERIAL_CAVITY_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -783,13 +787,16 @@ class _ObjectShape:
     def _is_the_bodys(self, part, rest, level):
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``is_solid``: a rim no brighter than its inside), smaller than the ``rest`` of the bone,
-        which is bone still (a cortex), and not the bone's inside, which the rest surrounds (less than
+        which is bone still (a cortex), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE
+        of it), and not the bone's inside, which the rest surrounds (less than
         MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker
         than the part."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
         if not is_solid(self._cortex(part, self._depth_of(part))):
             return False
+        if (_filled(part, self._open_sides, self._padding) & ~part).sum() > MATERIAL_CAVITY_SHARE * part.sum():
+            return False  # a shell round a cavity: a thick cortex round the bone's inside
         ring = self._within(part, MATERIAL_RING_MM) & ~part
         in_rest = ring & rest
         enclosed = in_rest.sum() > (1.0 - MATERIAL_OPEN_FRACTION) * ring.sum()
