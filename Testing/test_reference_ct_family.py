@@ -386,7 +386,7 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_by_its_material(seed,
     parts a bracket 0.9 of the bone's thickness from it: the cut kept the bar, or the rod and the frame's end, with the
     bone, and the IPC had 6,856 and 3,402 points on them (40248's was the rod's: none of the bone covered), exit 0.
     The body is now followed by its material into what the cut kept: the bar's plateau (670 HU), the frame's (384 HU)
-    and then the rod's (2,098 HU). Measured: no point on the body, 88.6 % and 96.7 % of the bone covered."""
+    and then the rod's (2,098 HU). Measured: no point on the body, 88.5 % and 95.8 % of the bone covered."""
     volume, truth = make_family_ct(seed, "full", overrides=wide_bracket_overrides(seed))
     image, score = run(volume, truth)
     assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
@@ -394,14 +394,17 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_by_its_material(seed,
     assert image.segmentation.body_followed.any()
 
 
-def test_a_thick_cortex_is_not_followed_as_the_bodys_material():
-    """Family seed 12094 (full profile): a long bone whose 1,334 HU cortex is thick enough to be a plateau of its own
-    (solid, a third of its ring outside the bone), an 11.1 mm bracket of 429 HU inserted into it. A first form of the
-    body's following took the cortex for the body's material and the tibia was refused; a plateau whose cavities hold
-    the bone left is its cortex. Measured: 99.1 % of the bone covered, none of the IPC on the body, as before."""
-    volume, truth = make_family_ct(12094, "full")
+@pytest.mark.parametrize("seed, covered", [(12094, 0.95), (40317, 0.8)])
+def test_a_bones_own_cortex_is_not_followed_as_the_bodys_material(seed, covered):
+    """Two long bones whose cortex is thick enough to be a plateau of its own (solid, part of its ring outside the
+    bone). Family seed 12094 (full profile): a 1,334 HU cortex round marrow, an 11.1 mm bracket of 429 HU inserted;
+    wide seed 40317: a 783 HU cortex round a 426 HU inside, a 20 mm bar of 295 HU resting on it. A first form of the
+    body's following took the cortex for the body's material and the bone was refused: a plateau that is a shell round
+    a cavity is the cortex (12094), and the first plateau's level must be on the body's side of the cut too (40317).
+    Measured: 99.2 % and 86.1 % of the bone covered, none of the IPC on the body, as before the following."""
+    volume, truth = make_family_ct(seed, "full", overrides=wide_bracket_overrides(seed) if seed >= 40000 else None)
     image, score = run(volume, truth)
-    assert not score.refused and score.ipc_on_body == 0 and score.coverage >= 0.95
+    assert not score.refused and score.ipc_on_body == 0 and score.coverage >= covered
 
 
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():

@@ -752,15 +752,24 @@ class _ObjectShape:
     def _follow_body_material(self, cut):
         """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
         nearly as thick as the bone, which no opening parts from it), or the cut itself when no plateau is the body's.
-        A plateau taken moves the cut: the next one (a frame's, then its bracket's) is read from there."""
+        The first plateau's level is on the body's side of the cut too (where that side has a level to read); a plateau
+        taken moves the cut, and the next
+        one (a frame's, then its bracket's) is read from there."""
         bone = cut.bone
-        for _ in range(MATERIAL_STEPS):
+        # The first plateau goes on across the cut: the body's side holds its level too, where it has levels to read
+        # (the bone's own cortex, thick enough to be a plateau where a bracket rests on it, does not: 40317, a 783 HU
+        # cortex under a 295 HU bar; 40231's body, its frame apart, leaves the cut 67 cells too thin to read).
+        near_cut = self._distance_to(bone, MATERIAL_LEVELS_MM) <= MATERIAL_LEVELS_MM
+        across = levels_among(self.mean_hu, self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut)
+        for step in range(MATERIAL_STEPS):
             body = self.filled & ~bone
             to_body = self._distance_to(body, MATERIAL_LEVELS_MM)
             deep = bone & (self.depth >= MATERIAL_DEEP_MM)
             seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
             taken = None
             for level in levels_among(self.mean_hu, deep & (to_body <= MATERIAL_LEVELS_MM)):
+                if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
+                    continue
                 part = plateau(self.mean_hu, bone, level, seeds)
                 if self._is_the_bodys(part, bone & ~part, level):
                     taken = part
