@@ -116,6 +116,8 @@ MATERIAL_DEEP_MM = 2.0
 MATERIAL_LEVELS_MM = 8.0
 MATERIAL_TOUCH_MM = 3.0
 MATERIAL_STEPS = 3
+#: The bone's inside level is read this far (mm) from the body at least.
+MATERIAL_FAR_MM = 10.0
 #: ... and a plateau taken takes the cells round it this deep (cells along the grid's axes) too: the blur at its edge.
 MATERIAL_BLUR_CELLS = 2
 #: A plateau the bone left surrounds (outside it, less than this fraction of the ring MATERIAL_RING_MM round it) and no
@@ -753,14 +755,19 @@ class _ObjectShape:
         """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
         nearly as thick as the bone, which no opening parts from it), or the cut itself when no plateau is the body's.
         The first plateau's level is on the body's side of the cut too (where that side has a level to read); a plateau
-        taken moves the cut, and the next
-        one (a frame's, then its bracket's) is read from there."""
+        taken moves the cut, and the next one (a frame's, then its bracket's) is read from there."""
         bone = cut.bone
         # The first plateau goes on across the cut: the body's side holds its level too, where it has levels to read
         # (the bone's own cortex, thick enough to be a plateau where a bracket rests on it, does not: 40317, a 783 HU
         # cortex under a 295 HU bar; 40231's body, its frame apart, leaves the cut 67 cells too thin to read).
         near_cut = self._distance_to(bone, MATERIAL_LEVELS_MM) <= MATERIAL_LEVELS_MM
         across = levels_among(self.mean_hu, self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut)
+        # A later plateau may be the bone's inside, bared where a bracket inserted into it was taken (40170: an ilium's
+        # 265 HU inside taken after its 958 HU bracket, 60 % of its coverage lost): not at the level of the inside of
+        # the bone far from the body.
+        far = bone & (self._distance_to(self.filled & ~bone, MATERIAL_FAR_MM) > MATERIAL_FAR_MM)
+        far_inside = self._inside(far, self._depth_of(far)) if far.any() else far
+        inside_level = float(np.median(self.mean_hu[far_inside])) if far_inside.any() else None
         for step in range(MATERIAL_STEPS):
             body = self.filled & ~bone
             to_body = self._distance_to(body, MATERIAL_LEVELS_MM)
@@ -769,6 +776,8 @@ class _ObjectShape:
             taken = None
             for level in levels_among(self.mean_hu, deep & (to_body <= MATERIAL_LEVELS_MM)):
                 if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
+                    continue
+                if step > 0 and inside_level is not None and abs(level - inside_level) <= BAND_HU:
                     continue
                 part = plateau(self.mean_hu, bone, level, seeds)
                 if self._is_the_bodys(part, bone & ~part, level):
@@ -797,9 +806,8 @@ class _ObjectShape:
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``is_solid``: a rim no brighter than its inside), smaller than the ``rest`` of the bone,
         which is bone still (a cortex), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE
-        of it), and not the bone's inside, which the rest surrounds (less than
-        MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker
-        than the part."""
+        of it), and not the bone's inside, which the rest surrounds (less than MATERIAL_OPEN_FRACTION of the ring
+        MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
         if not is_solid(self._cortex(part, self._depth_of(part))):
