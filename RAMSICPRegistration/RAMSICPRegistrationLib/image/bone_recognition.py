@@ -118,7 +118,12 @@ MATERIAL_TOUCH_MM = 3.0
 MATERIAL_STEPS = 3
 #: The bone's inside level is read this far (mm) from the body at least.
 MATERIAL_FAR_MM = 10.0
-#: ... and a plateau taken takes the cells round it this deep (cells along the grid's axes) too: the blur at its edge.
+#: A plateau holding more than this share of the inside of the bone that far from the body is the bone's inside (the
+#: wide CT 40173: a 223 HU bracket inserted into a flat bone whose inside is 257 HU, one plateau with it, 0.92 of that
+#: inside; the brackets and frames of 40002, 40096, 40197, 40231, 40245, 40248 and 40271, kept with the bone by the
+#: cut, 0.00-0.29: their own part far from the body).
+MATERIAL_FAR_INSIDE_SHARE = 0.5
+#: A plateau taken takes the cells round it this deep (cells along the grid's axes) too: the blur at its edge.
 MATERIAL_BLUR_CELLS = 2
 #: A plateau the bone left surrounds (outside it, less than this fraction of the ring MATERIAL_RING_MM round it) and no
 #: darker than that ring is the bone's inside (its marrow or cancellous bone under the cortex), not the body's. In the
@@ -765,12 +770,13 @@ class _ObjectShape:
         # A later plateau may be the bone's inside, bared where a bracket inserted into it was taken (40170: an ilium's
         # 265 HU inside taken after its 958 HU bracket, 60 % of its coverage lost): not at the level of the inside of
         # the bone far from the body.
-        far = bone & (self._distance_to(self.filled & ~bone, MATERIAL_FAR_MM) > MATERIAL_FAR_MM)
+        to_body = self._distance_to(self.filled & ~bone, MATERIAL_FAR_MM)  # the first step's too (a longer reach)
+        far = bone & (to_body > MATERIAL_FAR_MM)
         far_inside = self._inside(far, self._depth_of(far)) if far.any() else far
         inside_level = float(np.median(self.mean_hu[far_inside])) if far_inside.any() else None
         for step in range(MATERIAL_STEPS):
-            body = self.filled & ~bone
-            to_body = self._distance_to(body, MATERIAL_LEVELS_MM)
+            if step > 0:
+                to_body = self._distance_to(self.filled & ~bone, MATERIAL_LEVELS_MM)
             deep = bone & (self.depth >= MATERIAL_DEEP_MM)
             seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
             taken = None
@@ -780,7 +786,7 @@ class _ObjectShape:
                 if step > 0 and inside_level is not None and abs(level - inside_level) <= BAND_HU:
                     continue
                 part = plateau(self.mean_hu, bone, level, seeds)
-                if self._is_the_bodys(part, bone & ~part, level):
+                if self._is_the_bodys(part, bone & ~part, level, far_inside):
                     taken = part
                     break
             if taken is None:
@@ -802,14 +808,18 @@ class _ObjectShape:
             return cut
         return _Cut(bone, cut.margin_mm, cut.opening_mm, followed=cut.bone & ~bone)
 
-    def _is_the_bodys(self, part, rest, level):
+    def _is_the_bodys(self, part, rest, level, far_inside):
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``is_solid``: a rim no brighter than its inside), smaller than the ``rest`` of the bone,
         which is bone still (a cortex), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE
-        of it), and not the bone's inside, which the rest surrounds (less than MATERIAL_OPEN_FRACTION of the ring
-        MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part."""
+        of it), and not the bone's inside: neither most of ``far_inside`` (cells: the inside of the bone far from the
+        body; more than MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than
+        MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than
+        the part."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
+        if (part & far_inside).sum() > MATERIAL_FAR_INSIDE_SHARE * far_inside.sum():
+            return False  # a bracket as bright as the bone's inside, inserted into it: one plateau with it
         if not is_solid(self._cortex(part, self._depth_of(part))):
             return False
         if (_filled(part, self._open_sides, self._padding) & ~part).sum() > MATERIAL_CAVITY_SHARE * part.sum():
