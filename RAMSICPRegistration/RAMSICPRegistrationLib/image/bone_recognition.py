@@ -43,7 +43,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .body_material import BAND_HU, levels_among, plateau
+from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, means_noise_hu, plateau
 from .components import boxes_and_sizes
 from .morphology import block_max, dilate, dilate_by_cube, unblock
 from .parallel import in_parallel
@@ -132,9 +132,11 @@ MATERIAL_BLUR_CELLS = 2
 #: 133-148 HU brighter (the cortex).
 MATERIAL_OPEN_FRACTION = 0.1
 MATERIAL_RING_MM = 2.5
-#: A plateau whose cavities (filled) are more than this share of its own cells is a shell: the bone's cortex round its
-#: inside, solid where it is thick (family seed 12094: a long bone's 1,334 HU cortex, its cavity 0.49 of it, was taken
-#: for the body and the tibia refused).
+#: A plateau whose cavities (filled) are more than this share of its own cells, at the level of the bone's inside, is
+#: a shell: the bone's cortex round its inside, solid where it is thick (family seed 12094: a long bone's 1,334 HU
+#: cortex, its cavity 0.49 of it, was taken for the body and the tibia refused). A cavity at another level is the
+#: body's own part (held-out wide draw 3009: a bar's 955 HU end inserted into its 1,795 HU plate, 2.03 times the plate
+#: kept with the bone, the bone's inside -63 HU).
 MATERIAL_CAVITY_SHARE = 0.25
 
 
@@ -759,34 +761,53 @@ class _ObjectShape:
     def _follow_body_material(self, cut):
         """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
         nearly as thick as the bone, which no opening parts from it), or the cut itself when no plateau is the body's.
-        The first plateau's level is on the body's side of the cut too (where that side has a level to read); a plateau
-        taken moves the cut, and the next one (a frame's, then its bracket's) is read from there."""
+        Where the cell means are noisier than NOISY_HU (``means_noise_hu``, among the cells at least MATERIAL_DEEP_MM
+        deep) and none is taken, the levels are read again from the means averaged over the object's cells 3 x 3 x 3
+        (``averaged_means``; held-out wide draw 3009: 72 HU, a 20.3 mm bar of 956 HU inserted into a long bone 22.2 mm
+        thick, no level read on either side of the cut; the checks of a plateau still read the cells' own means), and
+        a plateau is then taken only apart from the level of the bone's inside far from the body, which must be
+        read (wide seed 40204: with the cut keeping none of the bone far from the body, a flat bone's 370 HU inside,
+        read so, was taken for the body's)."""
+        followed = self._follow_levels(cut, self.mean_hu)
+        if followed is cut and means_noise_hu(self.mean_hu, self.filled & (self.depth >= MATERIAL_DEEP_MM)) > NOISY_HU:
+            followed = self._follow_levels(cut, averaged_means(self.mean_hu, self.filled), apart_from_inside=True)
+        return followed
+
+    def _follow_levels(self, cut, levels_hu, apart_from_inside=False):
+        """``_follow_body_material`` with the levels and plateaus read from ``levels_hu`` ((I, J, K) HU, the cell
+        means or their average); with ``apart_from_inside``, every plateau's level must be apart from the bone's
+        inside level (at every step, not the later ones only), and that level read. The first plateau's level is on
+        the body's side of the cut too (where that side has a level to read); a plateau taken moves the cut, and the
+        next one (a frame's, then its bracket's) is read from there."""
         bone = cut.bone
         # The first plateau goes on across the cut: the body's side holds its level too, where it has levels to read
         # (the bone's own cortex, thick enough to be a plateau where a bracket rests on it, does not: 40317, a 783 HU
         # cortex under a 295 HU bar; 40231's body, its frame apart, leaves the cut 67 cells too thin to read).
         near_cut = self._distance_to(bone, MATERIAL_LEVELS_MM) <= MATERIAL_LEVELS_MM
-        across = levels_among(self.mean_hu, self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut)
+        across = levels_among(levels_hu, self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut)
         # A later plateau may be the bone's inside, bared where a bracket inserted into it was taken (40170: an ilium's
         # 265 HU inside taken after its 958 HU bracket, 60 % of its coverage lost): not at the level of the inside of
         # the bone far from the body.
         to_body = self._distance_to(self.filled & ~bone, MATERIAL_FAR_MM)  # the first step's too (a longer reach)
         far = bone & (to_body > MATERIAL_FAR_MM)
         far_inside = self._inside(far, self._depth_of(far)) if far.any() else far
-        inside_level = float(np.median(self.mean_hu[far_inside])) if far_inside.any() else None
+        inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
+        if apart_from_inside and inside_level is None:
+            return cut
         for step in range(MATERIAL_STEPS):
             if step > 0:
                 to_body = self._distance_to(self.filled & ~bone, MATERIAL_LEVELS_MM)
             deep = bone & (self.depth >= MATERIAL_DEEP_MM)
             seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
             taken = None
-            for level in levels_among(self.mean_hu, deep & (to_body <= MATERIAL_LEVELS_MM)):
+            for level in levels_among(levels_hu, deep & (to_body <= MATERIAL_LEVELS_MM)):
                 if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
                     continue
-                if step > 0 and inside_level is not None and abs(level - inside_level) <= BAND_HU:
+                at_inside = inside_level is not None and abs(level - inside_level) <= BAND_HU
+                if (step > 0 or apart_from_inside) and at_inside:
                     continue
-                part = plateau(self.mean_hu, bone, level, seeds)
-                if self._is_the_bodys(part, bone & ~part, level, far_inside):
+                part = plateau(levels_hu, bone, level, seeds)
+                if self._is_the_bodys(part, bone & ~part, level, far_inside, inside_level):
                     taken = part
                     break
             if taken is None:
@@ -808,22 +829,26 @@ class _ObjectShape:
             return cut
         return _Cut(bone, cut.margin_mm, cut.opening_mm, followed=cut.bone & ~bone)
 
-    def _is_the_bodys(self, part, rest, level, far_inside):
+    def _is_the_bodys(self, part, rest, level, far_inside, inside_level):
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``is_solid``: a rim no brighter than its inside), smaller than the ``rest`` of the bone,
         which is bone still (a cortex), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE
-        of it), and not the bone's inside: neither most of ``far_inside`` (cells: the inside of the bone far from the
-        body; more than MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than
-        MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than
-        the part."""
+        of it, at the level of the bone's inside, ``inside_level`` HU, or None where it was not read), and not the
+        bone's inside: neither most of ``far_inside`` (cells: the inside of the bone far from the body; more than
+        MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than MATERIAL_OPEN_FRACTION of the
+        ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
         if (part & far_inside).sum() > MATERIAL_FAR_INSIDE_SHARE * far_inside.sum():
             return False  # a bracket as bright as the bone's inside, inserted into it: one plateau with it
         if not is_solid(self._cortex(part, self._depth_of(part))):
             return False
-        if (_filled(part, self._open_sides, self._padding) & ~part).sum() > MATERIAL_CAVITY_SHARE * part.sum():
-            return False  # a shell round a cavity: a thick cortex round the bone's inside
+        cavity = _filled(part, self._open_sides, self._padding) & ~part
+        if cavity.sum() > MATERIAL_CAVITY_SHARE * part.sum():
+            # A shell round a cavity: a thick cortex round the bone's inside. A cavity of another level is the body's
+            # own (3009: a bar's end, 955 HU, inserted into its plate, the bone's inside -63 HU).
+            if inside_level is None or abs(np.median(self.mean_hu[cavity]) - inside_level) <= BAND_HU:
+                return False
         ring = self._within(part, MATERIAL_RING_MM) & ~part
         in_rest = ring & rest
         enclosed = in_rest.sum() > (1.0 - MATERIAL_OPEN_FRACTION) * ring.sum()
