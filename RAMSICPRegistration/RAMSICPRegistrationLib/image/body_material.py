@@ -20,7 +20,7 @@ means averaged over each cell's neighbours (``averaged_means``).
 import numpy as np
 from scipy import ndimage
 
-from .morphology import box_max, box_sum, dilate, erode
+from .morphology import _halves, box_max, box_sum, dilate, erode
 
 #: The cells of a plateau have block means within this (HU) of its level.
 BAND_HU = 80.0
@@ -76,9 +76,8 @@ def means_noise_hu(mean_hu, cells):
     two Gaussian samples' difference (0.954 of their standard deviation); 0.0 where no two such cells meet. The steps
     between materials move the median little where the cells are mostly inside plateaus (a bone's deep cells)."""
     differences = []
-    for axis in range(mean_hu.ndim):
-        low = tuple(slice(0, -1) if a == axis else slice(None) for a in range(mean_hu.ndim))
-        high = tuple(slice(1, None) if a == axis else slice(None) for a in range(mean_hu.ndim))
+    for axis in range(3):
+        low, high = _halves(mean_hu.shape, axis, 1)
         both = cells[low] & cells[high]
         differences.append(np.abs(mean_hu[high][both].astype(np.float64) - mean_hu[low][both]))
     differences = np.concatenate(differences)

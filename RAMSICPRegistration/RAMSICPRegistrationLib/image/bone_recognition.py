@@ -768,29 +768,40 @@ class _ObjectShape:
         a plateau is then taken only apart from the level of the bone's inside far from the body, which must be
         read (wide seed 40204: with the cut keeping none of the bone far from the body, a flat bone's 370 HU inside,
         read so, was taken for the body's)."""
-        followed = self._follow_levels(cut, self.mean_hu)
+        around = self._around_cut(cut.bone)
+        followed = self._follow_levels(cut, self.mean_hu, around)
         if followed is cut and means_noise_hu(self.mean_hu, self.filled & (self.depth >= MATERIAL_DEEP_MM)) > NOISY_HU:
-            followed = self._follow_levels(cut, averaged_means(self.mean_hu, self.filled), apart_from_inside=True)
+            averaged = averaged_means(self.mean_hu, self.filled)
+            followed = self._follow_levels(cut, averaged, around, apart_from_inside=True)
         return followed
 
-    def _follow_levels(self, cut, levels_hu, apart_from_inside=False):
-        """``_follow_body_material`` with the levels and plateaus read from ``levels_hu`` ((I, J, K) HU, the cell
-        means or their average); with ``apart_from_inside``, every plateau's level must be apart from the bone's
-        inside level (at every step, not the later ones only), and that level read. The first plateau's level is on
-        the body's side of the cut too (where that side has a level to read); a plateau taken moves the cut, and the
-        next one (a frame's, then its bracket's) is read from there."""
-        bone = cut.bone
+    def _around_cut(self, bone):
+        """What every reading of the levels takes from the ``bone`` a cut kept (cells), whatever the means it reads:
+        (the cells of the body's side at least MATERIAL_DEEP_MM deep within MATERIAL_LEVELS_MM of the bone, the
+        distances (mm) of all cells to the body's side, exact to MATERIAL_FAR_MM, and the inside of the bone farther
+        than MATERIAL_FAR_MM from it)."""
         # The first plateau goes on across the cut: the body's side holds its level too, where it has levels to read
         # (the bone's own cortex, thick enough to be a plateau where a bracket rests on it, does not: 40317, a 783 HU
         # cortex under a 295 HU bar; 40231's body, its frame apart, leaves the cut 67 cells too thin to read).
         near_cut = self._distance_to(bone, MATERIAL_LEVELS_MM) <= MATERIAL_LEVELS_MM
-        across = levels_among(levels_hu, self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut)
+        across_cells = self.filled & ~bone & (self.depth >= MATERIAL_DEEP_MM) & near_cut
         # A later plateau may be the bone's inside, bared where a bracket inserted into it was taken (40170: an ilium's
         # 265 HU inside taken after its 958 HU bracket, 60 % of its coverage lost): not at the level of the inside of
         # the bone far from the body.
         to_body = self._distance_to(self.filled & ~bone, MATERIAL_FAR_MM)  # the first step's too (a longer reach)
         far = bone & (to_body > MATERIAL_FAR_MM)
         far_inside = self._inside(far, self._depth_of(far)) if far.any() else far
+        return across_cells, to_body, far_inside
+
+    def _follow_levels(self, cut, levels_hu, around, apart_from_inside=False):
+        """``_follow_body_material`` with the levels and plateaus read from ``levels_hu`` ((I, J, K) HU, the cell
+        means or their average) and ``around`` the cut (``_around_cut``); with ``apart_from_inside``, every plateau's
+        level must be apart from the bone's inside level (at every step, not the later ones only), and that level
+        read. The first plateau's level is on the body's side of the cut too (where that side has a level to read); a
+        plateau taken moves the cut, and the next one (a frame's, then its bracket's) is read from there."""
+        bone = cut.bone
+        across_cells, to_body, far_inside = around
+        across = levels_among(levels_hu, across_cells)
         inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
         if apart_from_inside and inside_level is None:
             return cut
