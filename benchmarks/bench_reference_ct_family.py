@@ -51,6 +51,17 @@ def run_seed(seed, profile, wide=False, noise_hu=None):
     return truth.settings, score, time.perf_counter() - start, volume.voxels.size
 
 
+def noise_hu(text):
+    """An argparse type: a noise level (HU), finite and not negative."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not np.isfinite(value) or value < 0.0:
+        raise argparse.ArgumentTypeError(f"the noise must be a finite number of HU, 0 or more (got {text})")
+    return value
+
+
 def table_row(name, scores):
     total = {field: sum(getattr(score, field) for score in scores) for field in FIELDS}
     refused = sum(bool(score.refused) for score in scores)
@@ -80,7 +91,7 @@ def main():
     )
     parser.add_argument(
         "--noise-hu",
-        type=float,
+        type=noise_hu,
         default=None,
         help="every CT's noise (HU, standard deviation) instead of the seed's draw (2-80 HU, log-uniform); "
         "the held-out wide CT 3009 had 62",
