@@ -51,7 +51,7 @@ def run_seed(seed, profile, wide=False, noise_hu=None):
     return truth.settings, score, time.perf_counter() - start, volume.voxels.size
 
 
-def noise_hu(text):
+def noise_level_hu(text):
     """An argparse type: a noise level (HU), finite and not negative."""
     try:
         value = float(text)
@@ -91,7 +91,7 @@ def main():
     )
     parser.add_argument(
         "--noise-hu",
-        type=noise_hu,
+        type=noise_level_hu,
         default=None,
         help="every CT's noise (HU, standard deviation) instead of the seed's draw (2-80 HU, log-uniform); "
         "the held-out wide CT 3009 had 62",
