@@ -12,6 +12,7 @@ from RAMSICPRegistrationLib.image.body_material import (
     levels_among,
     means_noise_hu,
     plateau,
+    plateau_from_nearest,
 )
 from RAMSICPRegistrationLib.image.morphology import erode
 
@@ -84,6 +85,30 @@ def test_the_bones_inside_is_a_plateau_of_its_own_that_the_bars_does_not_reach()
     found = plateau(grid, bone | bar, INSIDE_HU, inner)
     assert (found & ~inside).sum() == 0 and found.sum() >= ndimage.binary_erosion(inside).sum()
     assert not plateau(grid, np.zeros(grid.shape, dtype=bool), BAR_HU, seeds).any()  # nothing among no cells
+
+
+def test_a_plateau_whose_seeds_all_lie_in_the_blur_grows_from_its_cells_nearest_the_body():
+    """The body's side 2 mm above the bar's top cell (a cut's margin): the bar's cells within 3 mm of it are its top
+    layer, in the blur with the air above, and grow nothing; the cells at the bar's level nearest the body (within a
+    cell of the nearest, among those within 8 mm of it, where the level is read) grow the bar's plateau, and nothing
+    of the bone."""
+    grid, bone, bar, inside = bar_on_a_flat_bone(noise_hu=10.0)
+    among = bone | bar
+    to_body = np.broadcast_to(37.5 - np.arange(40.0), grid.shape)  # mm; the bar's top cell (k = 35) 2.5 mm off
+    seeds = among & (to_body <= 3.0)
+    candidates = among & (to_body <= 8.0)
+    assert seeds.any() and (seeds <= bar).all() and not plateau(grid, among, BAR_HU, seeds).any()
+    found = plateau_from_nearest(grid, among, BAR_HU, seeds, candidates, to_body, 1.0)
+    core = ndimage.binary_erosion(bar, iterations=2)
+    assert (found & bone).sum() == 0 and (found & core).sum() == core.sum() and found.sum() <= bar.sum()
+    # seeds that reach the plateau are used as they are; no candidate at the level grows nothing
+    touching = np.zeros(grid.shape, dtype=bool)
+    touching[14:26, 20:23, 24:32] = True
+    assert np.array_equal(
+        plateau_from_nearest(grid, among, BAR_HU, touching, candidates, to_body, 1.0),
+        plateau(grid, among, BAR_HU, touching),
+    )
+    assert not plateau_from_nearest(grid, among, 2000.0, seeds, candidates, to_body, 1.0).any()
 
 
 def test_the_noise_of_the_means_is_read_from_neighbouring_deep_cells():

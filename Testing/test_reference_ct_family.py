@@ -409,6 +409,28 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_under_heavy_noise():
     assert image.segmentation.body_followed.any()
 
 
+def test_a_bracket_as_thick_as_the_bone_is_followed_from_seeds_no_opening_parts_it_from():
+    """Family seed 107 drawn with a 12.1 mm square bar of 1,053 HU resting on a long bone 14 mm thick (cortex 945 HU,
+    9.3 HU of noise), its star frame of 186 HU below the 200 HU threshold. The dim parts link the spheres to the
+    bar's far end, but no opening parts a bar that thick from the bone, so nothing was cut and the bar stayed with
+    the bone: 6,818 of 14,609 IPC points on it, exit 0. The body is now followed by its material from its seeds
+    where no opening parts it (the bar's plateau, 1,052 HU). Measured: 2 of 7,673 points on the body, all of the
+    bone covered."""
+    overrides = {"bone": "long", "bone_radius_mm": 7.0, "cortex_hu": 945.0, "noise_hu": 9.3}
+    bar = {
+        "bracket": "resting",
+        "bracket_shape": "square",
+        "bracket_cap": WIDE_BRACKET_CAP,
+        "bracket_diameter_mm": 12.1,
+    }
+    volume, truth = make_family_ct(107, "full", overrides={**overrides, **bar, "bracket_hu": 1053.0})
+    assert truth.settings["frame_hu"] < 200.0  # the frame is below the threshold: only the dim parts hold the bar
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body <= 0.001 * score.ipc_points
+    assert score.ipc_on_bone >= 0.99 * score.ipc_points and score.coverage >= 0.95
+    assert image.segmentation.body_followed.any()
+
+
 def test_a_bar_ringed_by_its_own_blur_is_not_taken_for_the_bones_inside():
     """Wide seed 40255 drawn as 3009 was (62 HU of noise, an 18 mm square bar of 956 HU from a 1,794 HU frame,
     inserted into a long bone 21.8 mm thick). The frame's plateau was followed, then the bar's (953 HU) refused as
