@@ -26,6 +26,7 @@ from RAMSICPRegistrationLib.simulation.reference_ct_family import (
     FieldOfView,
     make_family_ct,
     score_image_side,
+    thick_bar_overrides,
     wide_bracket_overrides,
 )
 from RAMSICPRegistrationLib.simulation.solids import Capsule
@@ -410,20 +411,13 @@ def test_a_bracket_nearly_as_thick_as_the_bone_is_followed_under_heavy_noise():
 
 
 def test_a_bracket_as_thick_as_the_bone_is_followed_from_seeds_no_opening_parts_it_from():
-    """Family seed 107 drawn with a 12.1 mm square bar of 1,053 HU resting on a long bone 14 mm thick (cortex 945 HU,
-    9.3 HU of noise), its star frame of 186 HU below the 200 HU threshold. The dim parts link the spheres to the
-    bar's far end, but no opening parts a bar that thick from the bone, so nothing was cut and the bar stayed with
-    the bone: 6,818 of 14,609 IPC points on it, exit 0. The body is now followed by its material from its seeds
-    where no opening parts it (the bar's plateau, 1,052 HU). Measured: 2 of 7,673 points on the body, all of the
-    bone covered."""
-    overrides = {"bone": "long", "bone_radius_mm": 7.0, "cortex_hu": 945.0, "noise_hu": 9.3}
-    bar = {
-        "bracket": "resting",
-        "bracket_shape": "square",
-        "bracket_cap": WIDE_BRACKET_CAP,
-        "bracket_diameter_mm": 12.1,
-    }
-    volume, truth = make_family_ct(107, "full", overrides={**overrides, **bar, "bracket_hu": 1053.0})
+    """Family seed 107 with a thick bar (``thick_bar_overrides``): a 12.1 mm square bar of 1,053 HU resting on a long
+    bone 13.9 mm thick (cortex 945 HU, 9.3 HU of noise), its star frame of 186 HU below the 200 HU threshold. The dim
+    parts link the spheres to the bar's far end, but no opening parts a bar that thick from the bone, so nothing was
+    cut and the bar stayed with the bone: 6,800 of 14,548 IPC points on it, exit 0. The body is now followed by its
+    material from its seeds where no opening parts it (the bar's plateau, 1,052 HU). Measured: 1 of 7,620 points on
+    the body, all of the bone covered."""
+    volume, truth = make_family_ct(107, "full", overrides=thick_bar_overrides(107))
     assert truth.settings["frame_hu"] < 200.0  # the frame is below the threshold: only the dim parts hold the bar
     image, score = run(volume, truth)
     assert not score.refused and score.ipc_on_body <= 0.001 * score.ipc_points

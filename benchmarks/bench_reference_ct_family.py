@@ -12,7 +12,7 @@ side runs on it with the drawn tool's geometry, and the result is scored against
   those rightly refused (less bone in the field of view than the smallest object taken for bone, 1.5 cm^3).
 
 Rows by kind of CT (bone, bracket, partial-volume model) show where the misses are. Run:
-python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full] [--brackets wide]
+python benchmarks/bench_reference_ct_family.py [--seeds 200] [--first 0] [--profile full] [--brackets wide|thick]
     [--noise-hu 62]
 """
 
@@ -29,14 +29,19 @@ from RAMSICPRegistrationLib.io.ndi_tools import tool_marker_geometry
 from RAMSICPRegistrationLib.simulation.reference_ct_family import (
     make_family_ct,
     score_image_side,
+    thick_bar_overrides,
     wide_bracket_overrides,
 )
 
 FIELDS = ("visible", "found", "false", "cut", "cut_usable", "ipc_points", "ipc_on_bone", "ipc_on_body", "unpairable")
 
 
-def run_seed(seed, profile, wide=False, noise_hu=None):
-    overrides = wide_bracket_overrides(seed) if wide else {}
+#: The ``--brackets`` choices that draw each seed's bracket (and what it rests on) anew, by name.
+BRACKET_OVERRIDES = {"wide": wide_bracket_overrides, "thick": thick_bar_overrides}
+
+
+def run_seed(seed, profile, brackets="drawn", noise_hu=None):
+    overrides = BRACKET_OVERRIDES[brackets](seed) if brackets in BRACKET_OVERRIDES else {}
     if noise_hu is not None:
         overrides["noise_hu"] = noise_hu
     volume, truth = make_family_ct(seed, profile, overrides=overrides or None)
@@ -86,8 +91,9 @@ def main():
     parser.add_argument(
         "--brackets",
         default="drawn",
-        choices=("drawn", "wide"),
-        help="drawn: as each seed draws them; wide: a round rod or square bar 8-20 mm, inserted or resting",
+        choices=("drawn", "wide", "thick"),
+        help="drawn: as each seed draws them; wide: a round rod or square bar 8-20 mm, inserted or resting; thick: a "
+        "square bar 9-14 mm of 1,000-1,500 HU resting on a long bone 12-18 mm thick whose cortex is dimmer",
     )
     parser.add_argument(
         "--noise-hu",
@@ -97,7 +103,6 @@ def main():
         "the held-out wide CT 3009 had 62",
     )
     arguments = parser.parse_args()
-    wide = arguments.brackets == "wide"
     noise = "as drawn" if arguments.noise_hu is None else f"{arguments.noise_hu:g} HU"
     print(
         f"{arguments.seeds} seeds from {arguments.first}, profile {arguments.profile}, brackets {arguments.brackets}, "
@@ -106,7 +111,7 @@ def main():
     groups = defaultdict(list)
     seconds, voxels, misses, scored = [], [], [], []
     for seed in range(arguments.first, arguments.first + arguments.seeds):
-        settings, score, elapsed, size = run_seed(seed, arguments.profile, wide, arguments.noise_hu)
+        settings, score, elapsed, size = run_seed(seed, arguments.profile, arguments.brackets, arguments.noise_hu)
         print(f"seed {seed}: {score}", file=sys.stderr, flush=True)  # progress
         seconds.append(elapsed)
         voxels.append(size)
@@ -114,7 +119,7 @@ def main():
         scored.append((seed, score))
         groups[f"bone {settings['bone']}"].append(score)
         groups[f"bracket {settings['bracket']}"].append(score)
-        if wide:
+        if arguments.brackets == "wide":
             groups[f"bracket {settings['bracket_shape']}"].append(score)
         groups[f"partial volume {settings['partial_volume']}"].append(score)
         if (

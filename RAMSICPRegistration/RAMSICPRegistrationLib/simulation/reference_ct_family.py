@@ -12,7 +12,8 @@ not depend on, the way the image is formed included:
 * **a bracket** rod from the frame's hub to the bone, 4-12 mm thick (thinner than the bone it is fixed into) and of
   any HU: inserted into the bone (as the paper fixes its rigid body in the porcine ilium), resting on it, ending
   short of it, or absent; with ``wide_bracket_overrides(seed)``, a round rod or a square bar 8-20 mm across (up to
-  0.9 of the bone's half-thickness), inserted or resting;
+  0.9 of the bone's half-thickness), inserted or resting; with ``thick_bar_overrides(seed)``, a square bar 9-14 mm
+  across and brighter than the cortex, resting on a long bone 12-18 mm thick;
 * **the bone**: an analytic long bone (a tube of cortex round marrow or cancellous bone, with or without its
   rounded end in view), an analytic flat bone (two cortical tables round cancellous bone) or a shipped bone mesh
   (tibia, fibula, ilium); cortex 700-2000 HU; bare in air or in 3-25 mm of soft tissue; the field of view may
@@ -63,6 +64,8 @@ BRACKET_SHAPES = ("round", "square")
 BRACKET_CAP = 0.6
 WIDE_BRACKET_CAP = 0.9
 WIDE_STREAM = 27
+#: ``thick_bar_overrides``'s stream, apart from the CT's and the wide brackets'.
+THICK_BAR_STREAM = 777
 #: The reference body stands at least this far (mm) off the bone's soft tissue (its bracket goes through it).
 BODY_CLEARANCE_MM = 5.0
 #: The cortex is at least this many point-spread sigmas thick (see ``make_family_ct``).
@@ -477,6 +480,27 @@ def wide_bracket_overrides(seed):
         "bracket_diameter_mm": float(rng.uniform(8.0, 20.0)),
         "bracket": ("inserted", "resting")[int(rng.integers(2))],
         "bracket_cap": WIDE_BRACKET_CAP,
+    }
+
+
+def thick_bar_overrides(seed):
+    """Overrides (``make_family_ct``) for a seed's CT with a square bar nearly as thick as a thin long bone, resting
+    on it and brighter than its cortex, under little noise (the held-out wide CT 3112's kind: a 12 mm square bar of
+    1,096 HU resting on a long bone 13-17 mm thick whose cortex is 831 HU, 5 HU of noise), drawn from the seed's own
+    stream apart from the CT's (its other choices stay as the seed draws them): a long bone of radius 6-9 mm and
+    cortex 750-950 HU; a square bar 9-14 mm across (up to WIDE_BRACKET_CAP of the bone's half-thickness) of
+    1,000-1,500 HU; 3-10 HU of noise."""
+    rng = np.random.default_rng([int(seed), THICK_BAR_STREAM])
+    return {
+        "bone": "long",
+        "bone_radius_mm": float(rng.uniform(6.0, 9.0)),
+        "cortex_hu": float(rng.uniform(750.0, 950.0)),
+        "bracket": "resting",
+        "bracket_shape": "square",
+        "bracket_cap": WIDE_BRACKET_CAP,
+        "bracket_diameter_mm": float(rng.uniform(9.0, 14.0)),
+        "bracket_hu": float(rng.uniform(1000.0, 1500.0)),
+        "noise_hu": float(rng.uniform(3.0, 10.0)),
     }
 
 
