@@ -604,14 +604,7 @@ class _ObjectShape:
             filled = self.filled
         else:
             volume, half, cortex, air_inside = self._measures(filled, self.depth if depth is None else depth)
-        if spheres:
-            verdict = "reference body"
-        elif volume < MIN_BONE_MM3 or half < MIN_HALF_THICKNESS_MM:
-            verdict = "too small or thin"
-        elif cortex is not None and cortex >= CORTEX_CONTRAST_HU:
-            verdict = "bone"
-        else:
-            verdict = "bone without a cortex"
+        verdict = "reference body" if spheres else _by_measures(volume, half, cortex)
         thin = verdict == "too small or thin" and volume >= MIN_BONE_MM3
         if (verdict == "bone without a cortex" or thin) and filled is self.filled:
             walled = self._walled_by_the_padding()
@@ -629,7 +622,7 @@ class _ObjectShape:
         """True when the whole object, as it is, is bone with a cortex by its measures (``verdict``, without a
         round field of view's padding taken for the CT's side: a body's object is seldom walled by it)."""
         volume, half, cortex, _ = self._whole()
-        return volume >= MIN_BONE_MM3 and half >= MIN_HALF_THICKNESS_MM and (cortex or 0.0) >= CORTEX_CONTRAST_HU
+        return _by_measures(volume, half, cortex) == "bone"
 
     def _measures(self, filled, depth):
         """(volume mm^3, half its largest thickness mm, cortex contrast HU or None, whether its inside is air) of the
@@ -736,6 +729,18 @@ class _ObjectShape:
         part = (self.filled if among is None else among) & self._within(core, opening)
         return self._cortex(part, self._depth_of(part))
 
+    def _takes_bone(self, body, bone, no_bone_on_body, no_more_bone_on_body):
+        """True when the guards of ``cut_off_body`` refuse a cut: with ``no_bone_on_body``, the ``body`` (cells) holds a
+        bone-like piece (``_bone_like``); with ``no_more_bone_on_body``, such a piece larger than the ``bone`` kept."""
+        if not (no_bone_on_body or (no_more_bone_on_body and body.sum() > bone.sum())):
+            return False
+        return self._bone_like(body, bone)
+
+    def _stub_margin_mm(self, opening_mm):
+        """The margin (mm) round the body's side within which IPC points are left out: the stub an opening of
+        ``opening_mm`` leaves on the bone (up to its radius high) and the coarse cells, a cell or two more."""
+        return opening_mm + 2.0 * float(self.cell.max()) + 1.0
+
     def _bone_like(self, cells, bone):
         """True when ``cells`` hold a piece of at least MIN_BONE_MM3 with a cortex (CORTEX_CONTRAST_HU) round its
         inside, and that inside is darker by as much than the rim of the ``bone`` (cells): a piece of the same bone
@@ -807,17 +812,14 @@ class _ObjectShape:
         contrast = self._cortex(beyond, np.where(beyond, self.depth, 0.0))
         if contrast is None or contrast < CORTEX_CONTRAST_HU:
             return None
-        start = _Cut(beyond, 2.0 * float(self.cell.max()) + 1.0, 0.0)
+        start = _Cut(beyond, self._stub_margin_mm(0.0), 0.0)
         followed = self._follow_body_material(start)
         if followed is start:
             return None
         verdict = self.verdict(0, followed.bone, self._depth_of(followed.bone))
         if not _bone_cut_off(verdict):
             return None
-        body = self.filled & ~followed.bone
-        if (no_bone_on_body or (no_more_bone_on_body and body.sum() > followed.bone.sum())) and self._bone_like(
-            body, followed.bone
-        ):
+        if self._takes_bone(self.filled & ~followed.bone, followed.bone, no_bone_on_body, no_more_bone_on_body):
             return None
         logger.info("reference body followed by its material from its seeds, no opening parting it from the bone")
         return verdict, followed
@@ -1024,15 +1026,11 @@ class _ObjectShape:
         verdict = self.verdict(0, bone, self._depth_of(bone))
         if not _bone_cut_off(verdict):
             return self.verdict(len(seeds)), None
-        body = rest & ~bone
-        if (no_bone_on_body or (no_more_bone_on_body and body.sum() > bone.sum())) and self._bone_like(body, bone):
+        if self._takes_bone(rest & ~bone, bone, no_bone_on_body, no_more_bone_on_body):
             # What would be the body is bone too: the dim parts met the bone (a dim bracket's end in it), or a seed
             # tied by the tool's distances lay in it, and the cut went through the bone.
             return self.verdict(len(seeds)), None
-        # The opening leaves a stub of the bracket on the bone, up to its radius high, and the coarse cells a cell
-        # or two more: IPC points that near the body's side are left out.
-        margin = max(margin, kept) + 2.0 * float(self.cell.max()) + 1.0
-        return verdict, _Cut(bone, margin, kept)
+        return verdict, _Cut(bone, self._stub_margin_mm(max(margin, kept)), kept)
 
     def _solid_parts_grown(self, core, away, rest, opening):
         """The cells of the bone's ``core`` (at ``opening`` mm) that make solid parts farther than ROD_TO_MM from the
@@ -1224,6 +1222,17 @@ def _bone_going_on(contrast):
     if contrast is None:
         return CORTEX_CONTRAST_HU
     return min(CORTEX_CONTRAST_HU, max(SOLID_CONTRAST_HU, 0.8 * contrast))
+
+
+def _by_measures(volume_mm3, half_thickness_mm, cortex_hu):
+    """What an object without spheres is by its measures (``_ObjectShape.verdict``): 'too small or thin' (under
+    MIN_BONE_MM3 or MIN_HALF_THICKNESS_MM), 'bone' (a cortex of CORTEX_CONTRAST_HU or more), or 'bone without a
+    cortex'."""
+    if volume_mm3 < MIN_BONE_MM3 or half_thickness_mm < MIN_HALF_THICKNESS_MM:
+        return "too small or thin"
+    if cortex_hu is not None and cortex_hu >= CORTEX_CONTRAST_HU:
+        return "bone"
+    return "bone without a cortex"
 
 
 def _bone_cut_off(verdict):
