@@ -146,7 +146,8 @@ MATERIAL_CAVITY_SHARE = 0.25
 @dataclass(frozen=True)
 class ObjectVerdict:
     """What one object was taken for: ``label``, its filled volume (mm^3), half its largest thickness (mm), its
-    cortex contrast (HU, None when it is too thin to tell), how many marker spheres it holds, and ``verdict``;
+    cortex contrast (HU, None when it is too thin to tell), ``spheres``: how many of the reference body's contacts
+    it holds (marker spheres, posts' feet, dim parts' contacts, a solid part's seeds), and ``verdict``;
     ``air_inside``: its filled inside is air (ENCLOSED_AIR_HU), not marrow."""
 
     label: int
@@ -173,7 +174,8 @@ class ObjectVerdict:
             cortex = "no inside to tell a cortex"
         else:
             cortex = f"rim {self.cortex_hu:+.0f} HU on its inside" + (" (air)" if self.air_inside else "")
-        held = f", holds {self.spheres} marker sphere(s)" if self.spheres else ""
+        # Not "marker spheres": a solid part gives many contacts (wide seed 41013: 1 sphere found, 46 contacts).
+        held = f", {self.spheres} contact(s) with the reference body (spheres, posts, parts)" if self.spheres else ""
         return f"{self.volume_mm3 / 1000.0:.1f} cm^3, {2 * self.half_thickness_mm:.0f} mm thick, {cortex}{held}"
 
 
