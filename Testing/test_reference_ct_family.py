@@ -489,7 +489,7 @@ def test_the_bones_own_cortex_or_inside_is_not_followed_as_the_bodys_material(se
 
 
 def test_a_flat_bone_solid_through_far_from_the_spheres_is_not_refused_as_their_frame():
-    """Family seed 18066 (full profile, a batch first run in this round): a flat bone whose cancellous inside (595
+    """Family seed 18066 (full profile, from the batch 18000-18099): a flat bone whose cancellous inside (595
     HU) is nearly as bright as its 704 HU cortex (rim +48 HU), apart from the reference body (its bracket short of
     the bone), 64-92 mm from the 4 spheres found. It was refused as the body's solid frame with 46 cm^3 of bone in
     view; a frame holds its spheres within a post's reach, so it is the bone now."""
