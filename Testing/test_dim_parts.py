@@ -15,19 +15,19 @@ ROD_RADIUS_MM = 3.0
 
 
 def _ct(part=None, part_hu=120.0, noise_hu=10.0, seed=0):
-    """(I, J, K) denoised HU on SPACING: a flat bone (40 x 40 x 10 mm of 1500 HU, its top face at TOP_MM) in 40 HU
-    of tissue, and on it a ``part`` of ``part_hu``: 'rod' (6 mm across, 20 mm long, standing on it), 'pad' (30 x 30
+    """(I, J, K) denoised HU on SPACING: a flat bone (60 x 60 x 10 mm of 1500 HU, its top face at TOP_MM) in 40 HU
+    of tissue, and on it a ``part`` of ``part_hu``: 'rod' (6 mm across, 20 mm long, standing on it), 'pad' (45 x 45
     x 5 mm lying on it) or None; blurred (0.5 mm) and noisy. Returns it with the bone's voxels (the largest object
     above 200 HU)."""
     i, j, k = np.meshgrid(*[(np.arange(n) + 0.5) * 0.6 for n in (117, 117, 84)], indexing="ij")
     hu = np.full(i.shape, 40.0)
-    hu[(np.abs(i - 35) <= 20) & (np.abs(j - 35) <= 20) & (np.abs(k - 20) <= 5)] = 1500.0
+    hu[(np.abs(i - 35) <= 30) & (np.abs(j - 35) <= 30) & (np.abs(k - 20) <= 5)] = 1500.0
     if part == "rod":
         hu[((i - AXIS_MM[0]) ** 2 + (j - AXIS_MM[1]) ** 2 <= ROD_RADIUS_MM**2) & (k > TOP_MM) & (k <= TOP_MM + 20)] = (
             part_hu
         )
     elif part == "pad":
-        hu[(np.abs(i - 35) <= 15) & (np.abs(j - 35) <= 15) & (k > TOP_MM) & (k <= TOP_MM + 5)] = part_hu
+        hu[(np.abs(i - 35) <= 22.5) & (np.abs(j - 35) <= 22.5) & (k > TOP_MM) & (k <= TOP_MM + 5)] = part_hu
     hu = ndimage.gaussian_filter(hu, 0.5 / SPACING)
     hu += ndimage.gaussian_filter(np.random.default_rng(seed).normal(0.0, noise_hu, hu.shape), 0.3 / SPACING)
     hu = hu.astype(np.float32)
@@ -59,9 +59,10 @@ def test_tissue_and_its_noise_meet_no_part(part, part_hu):
 
 
 def test_a_part_lying_on_the_bone_over_a_wide_area_is_soft_tissue_not_a_bracket():
-    """A 30 x 30 mm pad (900 mm^2, over MAX_CONTACT_MM2) as bright as the rod lying on the bone: soft tissue round
-    a bone, not where a bracket meets it."""
-    assert 30.0 * 30.0 > MAX_CONTACT_MM2
+    """A 45 x 45 mm pad (2,025 mm^2, over MAX_CONTACT_MM2) as bright as the rod lying on the bone: soft tissue round
+    a bone, not where a bracket meets it (an 18 mm dim bracket inserted into a bone meets its blur over 1,159 mm^2:
+    wide seed 40272)."""
+    assert 45.0 * 45.0 > MAX_CONTACT_MM2
     assert len(_contacts_mm(*_ct("pad"))) == 0
 
 

@@ -469,6 +469,20 @@ def test_a_thin_layer_of_tissue_with_air_beyond_leaves_the_surface_on_the_cortex
     assert score.coverage >= 0.85
 
 
+@pytest.mark.parametrize("seed", [40272, 43049])
+def test_a_wide_dim_bracket_meeting_the_bone_is_a_dim_part_whatever_its_contact(seed):
+    """Wide seed 40272: an 18 mm square bracket of 138 HU inserted into a long bone in air; 43049: a 14 mm square bar
+    of 136 HU resting on a long bone under 11 mm of soft tissue. Below the surface level, the first is a hole in the
+    cortex whose walls make a surface 0.5-1.8 mm inside the bone, and the second's corner with the bone lifts the
+    surface off it: 154 and 44 IPC points on the body. They meet the bone's blur over more than a dim part was
+    allowed (40272: 1,159 mm^2; the limit was 400, against soft tissue round the bone); at 1,600 mm^2 their surface
+    goes as the corner a dim part makes with the bone. Measured: none on the body, 9,496 of 9,496 and 2,737 of 2,758
+    on the bone."""
+    volume, truth = make_family_ct(seed, "full", overrides=wide_bracket_overrides(seed))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone >= 0.99 * score.ipc_points
+
+
 @pytest.mark.parametrize("seed, covered", [(12094, 0.95), (40317, 0.8), (40170, 0.7), (40173, 0.75)])
 def test_the_bones_own_cortex_or_inside_is_not_followed_as_the_bodys_material(seed, covered):
     """Bones whose own cortex or inside is a plateau that a first form of the body's following took for the body's
