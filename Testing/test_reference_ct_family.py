@@ -457,8 +457,8 @@ def test_a_plateau_is_solid_whatever_the_noise_lifts_its_rims_maxima_by():
 def test_a_thin_layer_of_tissue_with_air_beyond_leaves_the_surface_on_the_cortexs_edge():
     """Wide seed 41008 drawn with 62 HU of noise (its own draw: 17 HU): a right ilium's 1.8 mm cortex of 1,657 HU
     under 3.1 mm of soft tissue with air beyond. The level read round the bone took the air for what the cortex
-    touches (301 HU), and the level read across the surface, half-way between the cortex's peak and what lay 1-2 mm
-    beyond the points, took the air's edge again (501 HU): the IPC lay 0.42 mm out (median), 44,026 of its 56,792
+    touches (305 HU), and the level read across the surface, half-way between the cortex's peak and what lay 1-2 mm
+    beyond the points, took the air's edge again (502 HU): the IPC lay 0.42 mm out (median), 44,026 of its 56,792
     points within 0.5 mm of the bone. The level is now the CT where the cortex falls most steeply. Measured: 54,936
     of 54,975, 0.15 mm out (median), none on the body."""
     volume, truth = make_family_ct(41008, "full", overrides={**wide_bracket_overrides(41008), "noise_hu": 62.0})
@@ -473,8 +473,8 @@ def test_a_thin_layer_of_tissue_with_air_beyond_leaves_the_surface_on_the_cortex
 def test_a_wide_dim_bracket_meeting_the_bone_is_a_dim_part_whatever_its_contact(seed):
     """Wide seed 40272: an 18 mm square bracket of 138 HU inserted into a long bone in air; 43049: a 14 mm square bar
     of 136 HU resting on a long bone under 11 mm of soft tissue. Below the surface level, the first is a hole in the
-    cortex whose walls make a surface 0.5-1.8 mm inside the bone, and the second's corner with the bone lifts the
-    surface off it: 154 and 44 IPC points on the body. They meet the bone's blur over more than a dim part was
+    cortex whose walls make a surface 0.5-1.8 mm inside the bone, and the second's corner with the bone a surface
+    0.5-0.9 mm inside it: 154 and 44 IPC points on the body. They meet the bone's blur over more than a dim part was
     allowed (40272: 1,159 mm^2; the limit was 400, against soft tissue round the bone); at 1,600 mm^2 their surface
     goes as the corner a dim part makes with the bone. Measured: none on the body, 9,496 of 9,496 and 2,737 of 2,758
     on the bone."""

@@ -532,7 +532,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
                 "bone surface at half-max %.0f HU read across the surface (%.0f HU round the bone, %.2f mm apart)",
                 local,
                 level,
-                abs(local - level) / fall,
+                abs(local - level) / max(fall, 1e-6),
             )
             return bone_surface(volume, segmentation, fill_cavities, local, leave_out_metal, own_half_max)
     return BoneSurface(
