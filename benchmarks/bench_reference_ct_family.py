@@ -91,7 +91,7 @@ def main():
     parser.add_argument(
         "--brackets",
         default="drawn",
-        choices=("drawn", "wide", "thick"),
+        choices=("drawn", *BRACKET_OVERRIDES),
         help="drawn: as each seed draws them; wide: a round rod or square bar 8-20 mm, inserted or resting; thick: a "
         "square bar 9-14 mm of 1,000-1,500 HU resting on a long bone 12-18 mm thick whose cortex is dimmer",
     )

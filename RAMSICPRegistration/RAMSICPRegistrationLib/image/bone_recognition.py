@@ -803,9 +803,7 @@ class _ObjectShape:
         body it takes no bone-like piece."""
         if not seeds or not self._has_a_cortex():
             return None
-        near_seeds = np.zeros(self.filled.shape, dtype=bool)
-        for centre, reach in seeds:
-            near_seeds |= self._ball(centre, reach + float(self.cell.max()))
+        near_seeds = self._within_reach_of(seeds, float(self.cell.max()))
         beyond = self.filled & ~near_seeds
         if not (near_seeds & self.filled).any():
             return None
@@ -959,9 +957,7 @@ class _ObjectShape:
     def _apart_from_seeds(self, seeds):
         """What every cut of the object at ``seeds`` starts from: the cells within the seeds' reach (booleans), the
         rest of the object (booleans), and the rest's depth (mm, its distance transform)."""
-        near_sphere = np.zeros(self.filled.shape, dtype=bool)
-        for centre, reach in seeds:
-            near_sphere |= self._ball(centre, reach)
+        near_sphere = self._within_reach_of(seeds)
         rest = self.filled & ~near_sphere
         return near_sphere, rest, ndimage.distance_transform_edt(rest, sampling=self.cell)
 
@@ -1170,6 +1166,13 @@ class _ObjectShape:
         whole = np.zeros(self.segmentation.labels.shape, dtype=bool)
         whole[box] = (self.segmentation.labels[box] == self.label) & voxels
         return whole
+
+    def _within_reach_of(self, seeds, more_mm=0.0):
+        """The cells within the reach of any of ``seeds`` [(point (3,) RAS, reach mm)], and ``more_mm``."""
+        near = np.zeros(self.filled.shape, dtype=bool)
+        for centre, reach in seeds:
+            near |= self._ball(centre, reach + more_mm)
+        return near
 
     def _ball(self, centre, reach_mm):
         """The cells whose centres lie within ``reach_mm`` of ``centre`` (3,) RAS: summed per axis, as the grid's

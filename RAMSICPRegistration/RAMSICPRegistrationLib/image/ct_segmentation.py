@@ -990,8 +990,8 @@ def _cortex_edge(image, points, out, spacing):
     middle = fall[steepest, columns]
     after = fall[np.minimum(steepest + 1, len(along) - 2), columns]
     curvature = before - 2.0 * middle + after
-    vertex = 0.5 * (before - after) / np.where(curvature > 1e-6, curvature, 1.0)
-    at = steepest + 0.5 + np.where(curvature > 1e-6, np.clip(vertex, -0.5, 0.5), 0.0)  # in samples
+    vertex = np.clip(0.5 * (before - after) / np.maximum(curvature, 1e-6), -0.5, 0.5)
+    at = steepest + 0.5 + np.where(curvature > 1e-6, vertex, 0.0)  # in samples
     lower = np.minimum(np.floor(at).astype(int), len(along) - 2)
     fraction = at - lower
     at_edge = (1.0 - fraction) * profile[lower, columns] + fraction * profile[lower + 1, columns]
