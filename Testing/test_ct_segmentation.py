@@ -172,7 +172,11 @@ def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along,
     1.6 mm of the tube); over 99 % of the tube's surface 3 mm or more away from the rod is there as without it.
     Where the rods of 400 and 600 HU meet the tube, the CT 0.5-1 mm under the corner's surface rises above the level
     by less than 0.45 of the cortex's rise (``CORNER_PEAK_SHARE``): that corner is left out, and the IPC lies within
-    0.52 mm of the tube (0.60-0.68 mm without it; the 280 HU rods' corners, 0.69 mm at most, are under the level)."""
+    0.52 mm of the tube (0.60-0.68 mm without it; the 280 HU rods' corners, 0.69 mm at most, are under the level).
+    The rods of 280 and 400 HU across the tube, above the threshold, are set apart as the body's: the bone's core
+    grows them beyond 7.5 mm from the tube as solid pieces of 40-100 mm^3 (``bone_recognition.MIN_GROWN_SOLID_MM3``),
+    and the IPC lies within 0.04 mm of the tube (0.36-0.42 mm when they were kept), the tube's surface within 4 mm of
+    them left out with the cut's margin (99.5 and 98.6 % of it 3-4 mm away kept, 100 % farther)."""
     tube = _hollow_cylinder(outer=8.0, inner=5.0)
     tube[0] = (tube[0][0], 1500.0)
     axis = CENTRE + (0.0, 8.0 + radius - 0.5, 0.0)  # the rod's axis, its side 0.5 mm into the tube's cortex
@@ -180,14 +184,16 @@ def test_a_dim_rod_resting_on_the_bone_adds_no_surface_to_the_ipc(rod_hu, along,
     size = (30.0, 40.0, 30.0)
     bare = analytic_volume(tube, size_mm=size, noise_hu=10.0)
     volume = analytic_volume([rod, *tube], size_mm=size, noise_hu=10.0)
-    points = bone_surface(volume, segment_bone(volume)).points
+    segmentation = segment_bone(volume)
+    points = bone_surface(volume, segmentation).points
     off_tube = _off_tube(points)
     assert off_tube.max() < 2.0 and np.mean(off_tube > 0.5) < 0.03
     if rod_hu >= 400.0:
         assert off_tube.max() < 0.55  # 0.47-0.51 mm measured
     bare_points = bone_surface(bare, segment_bone(bare)).points
     from_rod = np.linalg.norm(np.cross(bare_points - axis, np.asarray(along) / np.linalg.norm(along)), axis=1)
-    away = from_rod > radius + 3.0  # past the corner
+    # Past the corner; past the cut's margin (up to 3.5 mm and a cell) where the rod is set apart as the body's.
+    away = from_rod > radius + (4.0 if segmentation.body is not None else 3.0)
     assert _share_kept(points, bare_points[away], volume.spacing) > 0.99
 
 
@@ -578,3 +584,77 @@ def test_a_holes_mouth_is_the_surface_near_its_wall_along_the_mesh_that_faces_as
     vertices, triangles, first = _sheets_with_a_wall(21, 70)
     at_i = vertices[:, 0]
     assert not _mouths(vertices, triangles, first & (at_i <= 5), facing_up_to(7), np.ones(3)).any()
+
+
+def _tube_with_a_dim_rod(hole_mm=11.0, inner=14.0, outer=16.0):
+    """A CT (70 x 70 x 40 voxels of 1 mm) holding a tube along k through it (cortex 1,000 HU from 14 to 16 mm round
+    (35, 35), marrow -50 HU, tissue 0 HU) and a rod of 150 HU, ``hole_mm`` wide, along i from the marrow (i = 25) out
+    through the cortex to i = 64: below a surface level of 500 HU, it joins the marrow to the outside (the cortex
+    from ``inner`` to ``outer`` mm). Returns the
+    volume, the image of the box round the tube (5 voxels in from the CT's i and j sides; the k sides are the CT's),
+    the tube's mask there, the box's corners, and the rod's cells just outside the cortex (where ``dim_parts`` finds
+    it meeting the bone's blur) in the box."""
+    from RAMSICPRegistrationLib.image.volume_io import CTVolume
+
+    shape = (70, 70, 40)
+    i, j, _ = np.meshgrid(*[np.arange(n, dtype=float) for n in shape], indexing="ij")
+    radius = np.hypot(i - 35.0, j - 35.0)
+    rod = (np.abs(j - 35.0) <= hole_mm / 2.0) & (np.abs(_ - 20.0) <= hole_mm / 2.0) & (i >= 25.0) & (i <= 64.0)
+    bone = (radius >= inner) & (radius <= outer) & ~rod
+    image = np.where(bone, 1000.0, np.where(radius < inner, -50.0, 0.0))
+    image[rod] = 150.0
+    volume = CTVolume(voxels=np.zeros(shape, np.float32), ijk_to_ras=np.eye(4))
+    low, high = np.array([5, 5, 0]), np.array([65, 65, 40])
+    box = tuple(slice(a, b) for a, b in zip(low, high))
+    contacts = np.argwhere(rod[box] & (np.abs(i[box] - 53.5) <= 1.0)).astype(float)
+    return volume, image[box], bone[box], low, high, contacts
+
+
+def test_the_marrow_a_dim_rods_hole_joins_to_the_outside_is_enclosed_once_plugged():
+    """Below the level (500 HU), the rod (150 HU) joins the tube's marrow (-50 HU) to the outside through its 11 mm
+    hole, so the 3-D fill finds no inside. Plugged within PLUG_MM of where the rod leaves the cortex, the marrow is
+    enclosed, and so is the rod's part within the tube; nothing outside the tube is."""
+    volume, image, bone, low, high, contacts = _tube_with_a_dim_rod()
+    walls = np.zeros(image.shape, dtype=bool)
+    levels = (500.0, 200.0)
+    i, j = np.meshgrid(*[np.arange(n) + 5.0 for n in image.shape[:2]], indexing="ij")
+    radius = np.hypot(i - 35.0, j - 35.0)[:, :, None] * np.ones(image.shape[2])
+    unplugged = ct_segmentation._enclosed(image, levels, walls, low, high, volume)
+    assert not unplugged[radius < 12.0].any()  # the marrow leaks out along the rod
+    on_edge = [(False, False), (False, False), (True, True)]
+    inside = ct_segmentation._plugged_inside(image, levels, walls, contacts, bone, on_edge, None, low, high, volume)
+    assert inside[radius < 13.0].all()  # the marrow, to within a voxel of its wall
+    assert not inside[radius > 16.5].any()  # nothing outside the tube: not the rod, not the tissue round it
+    # The box's k sides are the CT's: a voxel of the marrow has the tube on both sides along i, j and k (along j and
+    # k where the rod's hole opens its line along i); one outside it, along k alone (or i or j too where the tube
+    # lies across its line).
+    sides = ct_segmentation._between_sides(bone, on_edge, None)
+    assert (sides[radius < 13.0] >= 2).all() and np.mean(sides[radius < 13.0] == 3) > 0.8
+    assert (
+        sides[(radius > 17.0) & (np.abs(i - 35.0)[:, :, None] > 17.0) & (np.abs(j - 35.0)[:, :, None] > 17.0)] == 1
+    ).all()
+
+
+def test_a_plug_over_a_groove_in_the_bones_outside_encloses_nothing():
+    """The tube without the rod, its cortex 11 mm thick, a groove 5 mm wide, 8.5 mm deep and 12 mm long cut into it
+    from outside, and a dim part meeting the bone over the groove's mouth (a plate resting there): the plug fills the
+    groove's outer 5 mm and closes the rest, a pocket of tissue (about 200 mm^3) between the cortex's sides along two
+    axes; grown into the plug, it took 481 mm^3 (and the groove's walls from the IPC). Under MIN_PLUGGED_MM3 it is no
+    bone's inside: nothing is enclosed beyond the marrow the fill finds anyway."""
+    volume, image, bone, low, high, _ = _tube_with_a_dim_rod(hole_mm=0.0, inner=6.0, outer=17.0)
+    i, j, k = np.meshgrid(*[np.arange(n) + offset for n, offset in zip(image.shape, (5.0, 5.0, 0.0))], indexing="ij")
+    radius = np.hypot(i - 35.0, j - 35.0)
+    groove = (i > 35.0) & (radius > 8.5) & (np.abs(j - 35.0) <= 2.5) & (k >= 14) & (k < 26)
+    bone &= ~groove
+    image[groove] = 0.0
+    mouth = (i > 35.0) & (radius > 17.0) & (radius <= 18.5) & (np.abs(j - 35.0) <= 3.5) & (k >= 13) & (k < 27)
+    contacts = np.argwhere(mouth).astype(float)
+    walls = np.zeros(image.shape, dtype=bool)
+    on_edge = [(False, False), (False, False), (True, True)]
+    levels = (500.0, 200.0)
+    found = ct_segmentation._enclosed(image, levels, walls, low, high, volume)
+    assert not found[groove].any()
+    inside = ct_segmentation._plugged_inside(
+        image, levels, walls, contacts, bone | found, on_edge, None, low, high, volume
+    )
+    assert not inside.any()

@@ -69,6 +69,12 @@ CORTEX_CONTRAST_HU = 150.0
 ENCLOSED_AIR_HU = -900.0
 #: A core (an opening's centre) smaller than this (mm^3) opens to no bone.
 MIN_CORE_MM3 = 100.0
+#: ... but where no seed says where the body is, a solid piece the bone's core grows far from the bone
+#: (``_solid_parts_grown``) is the body's from this (mm^3): a short rod's core beyond ROD_TO_MM is small (family seed
+#: 35090: an 8.3 mm rod standing 27 mm out of a flat bone, no sphere found, 57 mm^3 at an opening of 2.75 mm, rim -9
+#: HU on its inside; kept with the bone, 806 IPC points on it). Where seeds hold the body, pieces that small may be
+#: the bone's (wide seed 40277: one set apart 37-58 mm from the body, 4.7 % of the bone's coverage lost).
+MIN_GROWN_SOLID_MM3 = 40.0
 #: The cortex is looked for this deep (mm) under the object's surface at the threshold, which lies out in the blur
 #: beyond the cortex's peak when the threshold is low against the bone's surroundings (bone in soft tissue).
 RIM_MM = 2.5
@@ -1010,7 +1016,7 @@ class _ObjectShape:
                 apart |= self._within(rods, opening + self.cell.max())
                 margin = max(margin, min(opening, ROD_MARGIN_MAX_MM))
                 part = self._core_through(part, core_kept, apart)
-            solid = self._solid_parts_grown(part, away, rest, opening)
+            solid = self._solid_parts_grown(part, away, rest, opening, MIN_CORE_MM3 if seeds else MIN_GROWN_SOLID_MM3)
             if solid.any():
                 apart |= self._within(solid, opening + self.cell.max())
                 part = self._core_through(part, core_kept, apart)
@@ -1030,11 +1036,11 @@ class _ObjectShape:
             return self.verdict(len(seeds)), None
         return verdict, _Cut(bone, self._stub_margin_mm(max(margin, kept)), kept)
 
-    def _solid_parts_grown(self, core, away, rest, opening):
+    def _solid_parts_grown(self, core, away, rest, opening, min_mm3=MIN_CORE_MM3):
         """The cells of the bone's ``core`` (at ``opening`` mm) that make solid parts farther than ROD_TO_MM from the
         bone kept so far (``away``: the cells' distances to it, mm, exact up to ROD_TO_MM): pieces of at least
-        MIN_CORE_MM3 whose rim, opened back within ``rest``, is no brighter than their inside (``is_solid``). They
-        are the body, which the seeds did not reach: a ring frame's far side between the seeds of its solid
+        ``min_mm3`` whose rim, opened back within ``rest``, is no brighter than their inside (``is_solid``). They are
+        the body, which the seeds did not reach: a ring frame's far side between the seeds of its solid
         junctions, its core grown in through the bracket (18037: 13 cm^3 of a 2,480 HU ring kept with the bone).
         Over 200 CTs, such far pieces of the body were solid (rim -337 to +43 HU on the inside) and those of bone
         were not (+228 to +1,489 HU). Voxels coarser than SOLID_MAX_VOXEL_MM, and openings under
@@ -1048,7 +1054,7 @@ class _ObjectShape:
         sizes = np.bincount(pieces.ravel(), minlength=count + 1)
         sizes[0] = 0
         for piece in np.argsort(-sizes)[:MAX_CORES]:
-            if sizes[piece] * np.prod(self.cell) < MIN_CORE_MM3:
+            if sizes[piece] * np.prod(self.cell) < min_mm3:
                 break
             if is_solid(self._core_contrast(pieces == piece, opening, rest)):
                 solid |= pieces == piece
