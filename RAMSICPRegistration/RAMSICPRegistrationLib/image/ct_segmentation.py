@@ -461,24 +461,21 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         # A dim part entering the bone (a plastic bracket inserted into it) joins its inside to the outside through
         # the hole it makes, below the level: where the bone is wider than the envelope's plug (a tibia's
         # metaphysis, a flat bone cut by the field of view), the inner walls stay. Plugged where the part meets the
-        # bone's blur, what the bone then encloses is its inside too.
-        # Only where the part is below the level: a bright one (a metal bracket's blur round its foot) is a wall.
+        # bone's blur (where the CT there is below the level: a part above it is no way out), what the bone then
+        # encloses is its inside too.
         at = np.clip(np.rint(contacts - low).astype(int), 0, np.array(original.shape) - 1)
         leaking = (contacts - low)[original[tuple(at.T)] < level]
-        corners = segmentation.origin + low, segmentation.origin + high
-        levels = (level, segmentation.threshold_hu)
         plugged = None
         if len(leaking):
-            on_edge = _on_ct_edge(segmentation, low, high, volume)
-            sides = (bone_and_inside, on_edge, padding)
-            plugged = _plugged_inside(original, levels, walls, leaking, *sides, *corners, volume)
-        added = plugged
-        if added is not None and added.any():
+            levels, sides = (level, segmentation.threshold_hu), (_on_ct_edge(segmentation, low, high, volume), padding)
+            corners = segmentation.origin + low, segmentation.origin + high
+            plugged = _plugged_inside(original, levels, walls, leaking, bone_and_inside, *sides, *corners, volume)
+        if plugged is not None and plugged.any():
             logger.info(
                 "%.0f mm^3 of the bone's inside joined to the outside through a dim part's hole",
-                added.sum() * np.prod(volume.spacing),
+                plugged.sum() * np.prod(volume.spacing),
             )
-            inner |= _inner_walls(vertices_ijk, triangles, down, dim, bone_and_inside | added, volume.spacing, fine)
+            inner |= _inner_walls(vertices_ijk, triangles, down, dim, bone_and_inside | plugged, volume.spacing, fine)
     if corners_looked_for:
         near = np.zeros(len(vertices_ijk), dtype=bool)
         if len(contacts):
@@ -1164,8 +1161,8 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     """(I, J, K) booleans over the bone's box (``low``, ``high``: its corners in the CT's indices): the inside of the
     ``bone`` (booleans: its voxels and the inside found so far) that it encloses (``_enclosed``) once the voxels within
     PLUG_MM of ``contacts`` ((N, 3) indices in the box, where dim parts meet the bone's blur) are walls too, in pieces
-    that lie between the bone's sides (PLUGGED_BETWEEN_SHARE; ``on_edge`` and ``padding`` as for
-    ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge."""
+    of MIN_PLUGGED_MM3 or more that lie between the bone's sides (PLUGGED_BETWEEN_SHARE; ``on_edge`` and ``padding``
+    as for ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge."""
     plug = np.zeros(image.shape, dtype=bool)
     reach = np.ceil(PLUG_MM / volume.spacing).astype(int)
     first = np.maximum(np.floor(contacts.min(axis=0)).astype(int) - reach, 0)
