@@ -446,36 +446,24 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
                 bone_and_inside |= envelope
     # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
     # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter by
-    # CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's. Where those parts are is looked for
-    # beside the inner walls.
+    # CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's. Where those parts are, and the inside
+    # they let out (``_plugged_dim_holes``), is looked for beside the inner walls.
     corners_looked_for = contrast is not None and fine
-    inner, contacts = in_parallel(
+    if corners_looked_for:
+        holes = (original, (level, segmentation.threshold_hu), walls if fill_cavities else None, padding)
+        parts = partial(_dim_parts_and_holes, segmentation, volume, bone_and_inside, low, high, *holes)
+    inner, (contacts, plugged) = in_parallel(
         partial(_inner_walls, vertices_ijk, triangles, down, dim, bone_and_inside, volume.spacing, fine)
         if fill_cavities
         else partial(np.zeros, len(vertices_ijk), dtype=bool),
-        partial(dim_parts.dim_parts_at_bone, segmentation.smoothed, bone_and_inside, low, volume.spacing)
-        if corners_looked_for
-        else _nothing,
+        parts if corners_looked_for else partial(tuple, (None, None)),
     )
-    if fill_cavities and corners_looked_for and len(contacts):
-        # A dim part entering the bone (a plastic bracket inserted into it) joins its inside to the outside through
-        # the hole it makes, below the level: where the bone is wider than the envelope's plug (a tibia's
-        # metaphysis, a flat bone cut by the field of view), the inner walls stay. Plugged where the part meets the
-        # bone's blur (where the CT there is below the level: a part above it is no way out), what the bone then
-        # encloses is its inside too.
-        at = np.clip(np.rint(contacts - low).astype(int), 0, np.array(original.shape) - 1)
-        leaking = (contacts - low)[original[tuple(at.T)] < level]
-        plugged = None
-        if len(leaking):
-            levels, sides = (level, segmentation.threshold_hu), (_on_ct_edge(segmentation, low, high, volume), padding)
-            corners = segmentation.origin + low, segmentation.origin + high
-            plugged = _plugged_inside(original, levels, walls, leaking, bone_and_inside, *sides, *corners, volume)
-        if plugged is not None and plugged.any():
-            logger.info(
-                "%.0f mm^3 of the bone's inside joined to the outside through a dim part's hole",
-                plugged.sum() * np.prod(volume.spacing),
-            )
-            inner |= _inner_walls(vertices_ijk, triangles, down, dim, bone_and_inside | plugged, volume.spacing, fine)
+    if plugged is not None and plugged.any():
+        logger.info(
+            "%.0f mm^3 of the bone's inside joined to the outside through a dim part's hole",
+            plugged.sum() * np.prod(volume.spacing),
+        )
+        inner |= _inner_walls(vertices_ijk, triangles, down, dim, bone_and_inside | plugged, volume.spacing, fine)
     if corners_looked_for:
         near = np.zeros(len(vertices_ijk), dtype=bool)
         if len(contacts):
@@ -1142,6 +1130,27 @@ def _enclosed(image, levels, walls, low, high, volume):
     return dilate(np.logical_or.reduce(inside), 2, within=(image < levels[0]) & ~walls)
 
 
+def _dim_parts_and_holes(segmentation, volume, bone_and_inside, low, high, original, levels, walls, padding):
+    """(contacts, plugged): where dim parts meet the bone's blur (``dim_parts.dim_parts_at_bone``: (N, 3) indices in
+    the segmentation's box) and the inside they let out of the bone (``_plugged_inside``, None when there is none to
+    look for: no part below the surface level ``levels[0]``, or ``walls`` None, the cavities not filled).
+
+    A dim part entering the bone (a plastic bracket inserted into it) joins its inside to the outside through the hole
+    it makes, below the level: where the bone is wider than the envelope's plug (a tibia's metaphysis, a flat bone cut
+    by the field of view), the inner walls stay. Plugged where the part meets the bone's blur (where the CT there is
+    below the level: a part above it is no way out), what the bone then encloses is its inside too."""
+    contacts = dim_parts.dim_parts_at_bone(segmentation.smoothed, bone_and_inside, low, volume.spacing)
+    if walls is None or not len(contacts):
+        return contacts, None
+    at = np.clip(np.rint(contacts - low).astype(int), 0, np.array(original.shape) - 1)
+    leaking = (contacts - low)[original[tuple(at.T)] < levels[0]]
+    if not len(leaking):
+        return contacts, None
+    sides = (_on_ct_edge(segmentation, low, high, volume), padding)
+    corners = segmentation.origin + low, segmentation.origin + high
+    return contacts, _plugged_inside(original, levels, walls, leaking, bone_and_inside, *sides, *corners, volume)
+
+
 #: A dim part's hole in the cortex is plugged by the voxels within this (mm) of where the part meets the bone's blur
 #: (``dim_parts``: cells of 1.5 mm, one cell past the blur round the bone's voxels, so up to 4.5 mm from them).
 PLUG_MM = 5.0
@@ -1162,7 +1171,8 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     ``bone`` (booleans: its voxels and the inside found so far) that it encloses (``_enclosed``) once the voxels within
     PLUG_MM of ``contacts`` ((N, 3) indices in the box, where dim parts meet the bone's blur) are walls too, in pieces
     of MIN_PLUGGED_MM3 or more that lie between the bone's sides (PLUGGED_BETWEEN_SHARE; ``on_edge`` and ``padding``
-    as for ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge."""
+    as for ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge or no
+    hole leads in."""
     plug = np.zeros(image.shape, dtype=bool)
     reach = np.ceil(PLUG_MM / volume.spacing).astype(int)
     first = np.maximum(np.floor(contacts.min(axis=0)).astype(int) - reach, 0)
@@ -1171,8 +1181,15 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     at = np.clip(np.rint(contacts).astype(int) - first, 0, last - first - 1)
     seeds[tuple(at.T)] = False
     near = ndimage.distance_transform_edt(seeds, sampling=volume.spacing) <= PLUG_MM
-    plug[tuple(slice(a, b) for a, b in zip(first, last))] = near
-    inside = _enclosed(image, levels, walls | plug, low, high, volume)
+    around = tuple(slice(a, b) for a, b in zip(first, last))
+    plug[around] = near
+    # A hole leads in where the plug holds dark voxels between the bone's sides that are not its inside found so far:
+    # else there is nothing to enclose (the bench CT's pin and aluminium bracket), and the fill is not made again.
+    local = _between_sides(bone, on_edge, padding, around) >= 2
+    if not (local & near & (image[around] < levels[0]) & ~bone[around] & ~walls[around]).any():
+        return None
+    # At the surface level alone: the threshold's fill (a cortex that dips under the level) was made before.
+    inside = _enclosed(image, levels[:1], walls | plug, low, high, volume)
     if inside is None:
         return None
     pieces, count = ndimage.label(inside & ~bone)
@@ -1190,18 +1207,25 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     return dilate(inside, int(reach.max()), within=plug & (image < levels[0]) & ~bone & between)
 
 
-def _between_sides(mask, on_edge, padding):
-    """(I, J, K) uint8: along how many of the grid's axes each voxel has ``mask`` on both sides (at any distance), or
-    the CT's edge (``on_edge``: per axis, whether the box's low and high sides are the CT's) or the ``padding`` ((I,
-    J) booleans, outside a round field of view, or None) where the bone is cut."""
-    count = np.zeros(mask.shape, dtype=np.uint8)
+def _between_sides(mask, on_edge, padding, around=None):
+    """(I, J, K) uint8 (or over the sub-box ``around``, 3 slices, the lines through it read whole): along how many of
+    the grid's axes each voxel has ``mask`` on both sides (at any distance), or the CT's edge (``on_edge``: per axis,
+    whether the box's low and high sides are the CT's) or the ``padding`` ((I, J) booleans, outside a round field of
+    view, or None) where the bone is cut."""
+    around = around or (slice(None),) * 3
+    count = None
     for axis in range(3):
-        before = np.logical_or.accumulate(mask, axis=axis)
-        after = np.flip(np.logical_or.accumulate(np.flip(mask, axis), axis=axis), axis)
+        lines = tuple(slice(None) if a == axis else around[a] for a in range(3))
+        part = tuple(around[axis] if a == axis else slice(None) for a in range(3))
+        line = mask[lines]
+        before = np.logical_or.accumulate(line, axis=axis)[part]
+        after = np.flip(np.logical_or.accumulate(np.flip(line, axis), axis=axis), axis)[part]
         if padding is not None and axis < 2:
-            before |= np.logical_or.accumulate(padding, axis=axis)[:, :, None]
-            after |= np.flip(np.logical_or.accumulate(np.flip(padding, axis), axis=axis), axis)[:, :, None]
-        count += (before | on_edge[axis][0]) & (after | on_edge[axis][1])
+            rows = padding[lines[:2]]
+            before |= np.logical_or.accumulate(rows, axis=axis)[part[:2]][:, :, None]
+            after |= np.flip(np.logical_or.accumulate(np.flip(rows, axis), axis=axis), axis)[part[:2]][:, :, None]
+        both = (before | on_edge[axis][0]) & (after | on_edge[axis][1])
+        count = both.astype(np.uint8) if count is None else count + both
     return count
 
 
