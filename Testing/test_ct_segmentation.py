@@ -587,19 +587,18 @@ def test_a_holes_mouth_is_the_surface_near_its_wall_along_the_mesh_that_faces_as
 
 
 def _tube_with_a_dim_rod(hole_mm=11.0, inner=14.0, outer=16.0):
-    """A CT (70 x 70 x 40 voxels of 1 mm) holding a tube along k through it (cortex 1,000 HU from 14 to 16 mm round
-    (35, 35), marrow -50 HU, tissue 0 HU) and a rod of 150 HU, ``hole_mm`` wide, along i from the marrow (i = 25) out
-    through the cortex to i = 64: below a surface level of 500 HU, it joins the marrow to the outside (the cortex
-    from ``inner`` to ``outer`` mm). Returns the
-    volume, the image of the box round the tube (5 voxels in from the CT's i and j sides; the k sides are the CT's),
-    the tube's mask there, the box's corners, and the rod's cells just outside the cortex (where ``dim_parts`` finds
-    it meeting the bone's blur) in the box."""
+    """A CT (70 x 70 x 40 voxels of 1 mm) holding a tube along k through it (cortex 1,000 HU from ``inner`` to
+    ``outer`` mm round (35, 35), marrow -50 HU, tissue 0 HU) and a square rod of 150 HU, ``hole_mm`` wide, along i
+    from the marrow (i = 25) out through the cortex to i = 64: below a surface level of 500 HU, it joins the marrow to
+    the outside. Returns the volume, the image of the box round the tube (5 voxels in from the CT's i and j sides; the
+    k sides are the CT's), the tube's mask there, the box's corners, and the rod's cells just outside the cortex
+    (where ``dim_parts`` finds it meeting the bone's blur) in the box."""
     from RAMSICPRegistrationLib.image.volume_io import CTVolume
 
     shape = (70, 70, 40)
-    i, j, _ = np.meshgrid(*[np.arange(n, dtype=float) for n in shape], indexing="ij")
+    i, j, k = np.meshgrid(*[np.arange(n, dtype=float) for n in shape], indexing="ij")
     radius = np.hypot(i - 35.0, j - 35.0)
-    rod = (np.abs(j - 35.0) <= hole_mm / 2.0) & (np.abs(_ - 20.0) <= hole_mm / 2.0) & (i >= 25.0) & (i <= 64.0)
+    rod = (np.abs(j - 35.0) <= hole_mm / 2.0) & (np.abs(k - 20.0) <= hole_mm / 2.0) & (i >= 25.0) & (i <= 64.0)
     bone = (radius >= inner) & (radius <= outer) & ~rod
     image = np.where(bone, 1000.0, np.where(radius < inner, -50.0, 0.0))
     image[rod] = 150.0

@@ -567,8 +567,9 @@ def test_a_short_rod_no_sphere_tells_is_set_apart_as_the_solid_part_the_bones_co
     of it into air to a 113 HU plate whose plastic spheres (154 HU) are sunk in it: no sphere is found, and only the
     rod is above the threshold. The bone's core grew the rod at an opening of 2.75 mm, beyond 7.5 mm from the bone a
     solid piece (rim -9 HU on its inside) of 57 mm^3, under the 100 mm^3 a core had to have: the rod was kept with the
-    bone, 806 of 23,083 IPC points on it, exit 0. A solid piece the core grows counts from 40 mm^3
-    (``MIN_GROWN_SOLID_MM3``). Measured: 22,366 of 22,366 on the bone, 98.0 % of it covered (97.5 % before)."""
+    bone, 806 of 23,083 IPC points on it, exit 0. Where no seed holds the body, a solid piece the core grows counts
+    from 40 mm^3 now (``bone_recognition.MIN_GROWN_SOLID_MM3``). Measured: 22,366 of 22,366 on the bone, 98.0 % of it
+    covered (97.5 % before)."""
     volume, truth = make_family_ct(35090, "full")
     _, score = run(volume, truth)
     assert not score.refused and score.visible == 0

@@ -447,7 +447,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # Where a part dimmer than the bone meets it (a plastic bracket resting on it or entering it), the corner they
     # make lifts the surface off the bone: near there (``dim_parts``), the points that touch something brighter by
     # CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's. Where those parts are, and the inside
-    # they let out (``_plugged_dim_holes``), is looked for beside the inner walls.
+    # they let out (``_dim_parts_and_holes``), is looked for beside the inner walls.
     corners_looked_for = contrast is not None and fine
     if corners_looked_for:
         holes = (original, (level, segmentation.threshold_hu), walls if fill_cavities else None, padding)
