@@ -449,6 +449,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     # CORNER_BRIGHTER_HU than the rest of the surface touches are the corner's. Where those parts are, and the inside
     # they let out (``_dim_parts_and_holes``), is looked for beside the inner walls.
     corners_looked_for = contrast is not None and fine
+    parts = partial(tuple, (None, None))  # no contacts, nothing plugged
     if corners_looked_for:
         holes = (original, (level, segmentation.threshold_hu), walls if fill_cavities else None, padding)
         parts = partial(_dim_parts_and_holes, segmentation, volume, bone_and_inside, low, high, *holes)
@@ -456,7 +457,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
         partial(_inner_walls, vertices_ijk, triangles, down, dim, bone_and_inside, volume.spacing, fine)
         if fill_cavities
         else partial(np.zeros, len(vertices_ijk), dtype=bool),
-        parts if corners_looked_for else partial(tuple, (None, None)),
+        parts,
     )
     if plugged is not None and plugged.any():
         logger.info(
