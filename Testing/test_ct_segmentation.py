@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from RAMSICPRegistrationLib.image import ct_segmentation, dim_parts
+from RAMSICPRegistrationLib.image import bone_recognition, ct_segmentation, dim_parts, plugs
 from RAMSICPRegistrationLib.image.ct_segmentation import (
     bone_surface,
     fill_axis,
@@ -627,11 +627,50 @@ def test_the_marrow_a_dim_rods_hole_joins_to_the_outside_is_enclosed_once_plugge
     # The box's k sides are the CT's: a voxel of the marrow has the tube on both sides along i, j and k (along j and
     # k where the rod's hole opens its line along i); one outside it, along k alone (or i or j too where the tube
     # lies across its line).
-    sides = ct_segmentation._between_sides(bone, on_edge, None)
+    sides = plugs.between_sides(bone, on_edge, None)
     assert (sides[radius < 13.0] >= 2).all() and np.mean(sides[radius < 13.0] == 3) > 0.8
     assert (
         sides[(radius > 17.0) & (np.abs(i - 35.0)[:, :, None] > 17.0) & (np.abs(j - 35.0)[:, :, None] > 17.0)] == 1
     ).all()
+
+
+def _plate_with_a_dim_rod(inside_hu, hole_mm=9.0):
+    """A flat bone 12 mm thick aslant a 50 mm CT (its normal along (1, 0, 1)), ending 15 mm from the middle on one side
+    and cut by the CT's sides elsewhere: two tables of 1.5 mm of 1,400 HU round an ``inside_hu`` inside, in 20 HU
+    tissue, and a 120 HU rod ``hole_mm`` wide through its upper table (a plastic bracket inserted into it), on 0.7 mm
+    voxels."""
+    normal, along = np.array([1.0, 0.0, 1.0]) / np.sqrt(2.0), np.array([1.0, 0.0, -1.0]) / np.sqrt(2.0)
+
+    def slab(half_mm, end_mm):
+        return lambda points: np.maximum(
+            np.abs((points - CENTRE) @ normal) - half_mm, -end_mm - (points - CENTRE) @ along
+        )
+
+    plate = (slab(6.0, 15.0), 1400.0)
+    inside = (slab(4.5, 13.5), inside_hu)
+    rod = (_rod_sdf(CENTRE + 3.0 * normal, CENTRE + 16.0 * normal, hole_mm / 2.0), 120.0)
+    tissue = (lambda points: np.full(points.shape[:-1], -100.0), 20.0)
+    return analytic_volume([tissue, plate, inside, rod], spacing=(0.7, 0.7, 0.7), size_mm=(50.0, 50.0, 50.0))
+
+
+def test_a_flat_bone_whose_inside_a_dim_rods_hole_joins_to_the_outside_is_bone_once_plugged(monkeypatch):
+    """The flat bone's 150 HU inside is below the threshold, and the rod's hole joins it to the tissue above; aslant
+    the grid, no slice encloses it either: to the fill the bone was its two tables, 4 mm thick where they meet, too
+    thin for a bone (family seed 40232 with wide brackets, a flat bone the CT cuts on five sides: refused as a solid
+    frame, 115 cm^3 of bone in view). Its holes up to 10 mm wide plugged (``bone_recognition._ObjectShape._plugged``),
+    it encloses its inside, and its rim is its cortex: bone, 11 mm thick, its rim 1,081 HU brighter than its inside.
+    A plate solid through (its inside as bright as its tables) is no bone for being plugged: the rod's blind hole is
+    enclosed, but its deepest cells are the plate's own (rim -9 HU)."""
+    recognition = segment_bone(_plate_with_a_dim_rod(150.0)).recognition
+    verdict = next(v for v in recognition.objects if v.label == recognition.label)
+    assert recognition.has_cortex and verdict.verdict == "bone"
+    assert verdict.cortex_hu > 1000.0 and 2.0 * verdict.half_thickness_mm > 10.0
+    solid = segment_bone(_plate_with_a_dim_rod(1400.0)).recognition
+    assert not solid.has_cortex
+    assert next(v for v in solid.objects if v.label == solid.label).verdict == "bone without a cortex"
+    monkeypatch.setattr(bone_recognition._ObjectShape, "_plugged", lambda shape: None)
+    with pytest.raises(ValueError, match="too small or thin"):
+        segment_bone(_plate_with_a_dim_rod(150.0))
 
 
 def test_a_plug_over_a_groove_in_the_bones_outside_encloses_nothing():

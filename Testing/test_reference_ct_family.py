@@ -503,6 +503,20 @@ def test_the_inside_a_dim_brackets_hole_joins_to_the_outside_is_plugged_where_th
     assert score.coverage >= 0.85 and score.ipc_on_body <= 0.002 * score.ipc_points
 
 
+def test_a_flat_bone_whose_inside_a_dim_brackets_hole_opens_is_not_refused_as_a_solid_frame():
+    """Wide seed 40232: a 116 HU bracket 9.3 mm wide inserted into a flat bone 10.3 mm thick (1.1 mm of 1,389 HU
+    cortex round a 163 HU inside), aslant the grid and cut by the CT's box on five sides, its plastic spheres (116 HU)
+    found but two of them partial. Below the threshold, the inside was one region with the tissue through the
+    bracket's hole: the bone was its two tables to the fill, its rim no brighter than its inside, and it was refused
+    as the body's solid frame beside its spheres, with 115 cm^3 of bone in view. Its holes plugged, it encloses its
+    inside (``bone_recognition._ObjectShape._plugged``): 48,038 of its 48,040 IPC points on the bone, 2 on the body
+    (where the bracket meets it), 94.8 % of the bone in view covered."""
+    volume, truth = make_family_ct(40232, "full", overrides=wide_bracket_overrides(40232))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 40000
+    assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.ipc_on_body <= 5 and score.coverage >= 0.9
+
+
 @pytest.mark.parametrize("seed, covered", [(12094, 0.95), (40317, 0.8), (40170, 0.7), (40173, 0.75)])
 def test_the_bones_own_cortex_or_inside_is_not_followed_as_the_bodys_material(seed, covered):
     """Bones whose own cortex or inside is a plateau that a first form of the body's following took for the body's

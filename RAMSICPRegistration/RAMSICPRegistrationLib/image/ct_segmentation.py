@@ -33,6 +33,7 @@ from .marker_spheres import detect_marker_spheres
 from .metal import METAL_EDGE_MM, find_metal_zone
 from .morphology import all_behind, any_ahead, any_behind, bounding_box, dilate, erode, labelled, open_by_cube
 from .parallel import in_parallel, in_slabs
+from .plugs import PLUG_MM, between_sides, inside_pieces
 from .rod_stub import rod_stub
 from .thin_appendages import wires_on_bone
 
@@ -1152,28 +1153,13 @@ def _dim_parts_and_holes(segmentation, volume, bone_and_inside, low, high, origi
     return contacts, _plugged_inside(original, levels, walls, leaking, bone_and_inside, *sides, *corners, volume)
 
 
-#: A dim part's hole in the cortex is plugged by the voxels within this (mm) of where the part meets the bone's blur
-#: (``dim_parts``: cells of 1.5 mm, one cell past the blur round the bone's voxels, so up to 4.5 mm from them).
-PLUG_MM = 5.0
-#: What a plug encloses is the bone's inside when at least this share of it has the bone (or the CT's edge, or the
-#: padding) on both sides along two of the grid's axes at least: 1.00 for a tibia's marrow (35065), a flat bone's
-#: inside (43004) and a long bone's (40088). Pockets of air the plugs closed against a flat bone's outer surface by a
-#: metal bracket resting on it (family seed 12066: 47-97 mm^3, 0.00) took its surface there as inner walls: 648 IPC
-#: points on the bone, 0.8 % of its coverage.
-PLUGGED_BETWEEN_SHARE = 0.9
-#: ... and at least this large (mm^3): the marrow behind a hole in a thin shaft is larger; a pocket of tissue closed
-#: in a groove of a fibula's surface is not (35098: 36 mm^3, 1.00; grown into the plug, 226 IPC points on the bone
-#: went with it, 2.2 % of its coverage).
-MIN_PLUGGED_MM3 = 250.0
-
-
 def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low, high, volume):
     """(I, J, K) booleans over the bone's box (``low``, ``high``: its corners in the CT's indices): the inside of the
     ``bone`` (booleans: its voxels and the inside found so far) that it encloses (``_enclosed``) once the voxels within
-    PLUG_MM of ``contacts`` ((N, 3) indices in the box, where dim parts meet the bone's blur) are walls too, in pieces
-    of MIN_PLUGGED_MM3 or more that lie between the bone's sides (PLUGGED_BETWEEN_SHARE; ``on_edge`` and ``padding``
-    as for ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge or no
-    hole leads in."""
+    ``plugs.PLUG_MM`` of ``contacts`` ((N, 3) indices in the box, where dim parts meet the bone's blur) are walls too,
+    in pieces large enough that lie between the bone's sides (``plugs.inside_pieces``; ``on_edge`` and ``padding`` as
+    for ``_enclosed_along_lines``), grown into the plug; None when the box has no side off the CT's edge or no hole
+    leads in."""
     plug = np.zeros(image.shape, dtype=bool)
     reach = np.ceil(PLUG_MM / volume.spacing).astype(int)
     first = np.maximum(np.floor(contacts.min(axis=0)).astype(int) - reach, 0)
@@ -1186,48 +1172,20 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     plug[around] = near
     # A hole leads in where the plug holds dark voxels between the bone's sides that are not its inside found so far:
     # else there is nothing to enclose (the bench CT's pin and aluminium bracket), and the fill is not made again.
-    local = _between_sides(bone, on_edge, padding, around) >= 2
+    local = between_sides(bone, on_edge, padding, around) >= 2
     if not (local & near & (image[around] < levels[0]) & ~bone[around] & ~walls[around]).any():
         return None
     # At the surface level alone: the threshold's fill (a cortex that dips under the level) was made before.
     inside = _enclosed(image, levels[:1], walls | plug, low, high, volume)
     if inside is None:
         return None
-    pieces, count = ndimage.label(inside & ~bone)
-    if count == 0:
-        return inside & ~bone
-    between = _between_sides(bone, on_edge, padding) >= 2
-    sizes = np.bincount(pieces.ravel(), minlength=count + 1)
-    large = sizes * float(np.prod(volume.spacing)) >= MIN_PLUGGED_MM3
-    kept = np.flatnonzero(large & (np.bincount(pieces[between], minlength=count + 1) >= PLUGGED_BETWEEN_SHARE * sizes))
-    inside = labelled(pieces, kept[kept > 0])
+    between = between_sides(bone, on_edge, padding) >= 2
+    inside = inside_pieces(inside & ~bone, between, np.prod(volume.spacing))
     if not inside.any():
         return inside
     # The plug reaches into the hole and under the cortex round it: the inside goes on into it there, between the
     # bone's sides (up to the hole's mouth, whose walls ``_mouths`` leaves out too), not round the bone's outside.
     return dilate(inside, int(reach.max()), within=plug & (image < levels[0]) & ~bone & between)
-
-
-def _between_sides(mask, on_edge, padding, around=None):
-    """(I, J, K) uint8 (or over the sub-box ``around``, 3 slices, the lines through it read whole): along how many of
-    the grid's axes each voxel has ``mask`` on both sides (at any distance), or the CT's edge (``on_edge``: per axis,
-    whether the box's low and high sides are the CT's) or the ``padding`` ((I, J) booleans, outside a round field of
-    view, or None) where the bone is cut."""
-    around = around or (slice(None),) * 3
-    count = None
-    for axis in range(3):
-        lines = tuple(slice(None) if a == axis else around[a] for a in range(3))
-        part = tuple(around[axis] if a == axis else slice(None) for a in range(3))
-        line = mask[lines]
-        before = np.logical_or.accumulate(line, axis=axis)[part]
-        after = np.flip(np.logical_or.accumulate(np.flip(line, axis), axis=axis), axis)[part]
-        if padding is not None and axis < 2:
-            rows = padding[lines[:2]]
-            before |= np.logical_or.accumulate(rows, axis=axis)[part[:2]][:, :, None]
-            after |= np.flip(np.logical_or.accumulate(np.flip(rows, axis), axis=axis), axis)[part[:2]][:, :, None]
-        both = (before | on_edge[axis][0]) & (after | on_edge[axis][1])
-        count = both.astype(np.uint8) if count is None else count + both
-    return count
 
 
 def _open_sides(low, high, volume):
