@@ -268,3 +268,39 @@ def test_a_pairing_resting_on_spots_that_fit_no_sphere_numbers_no_sphere():
     ordered, pairing, _, _, _ = _pair_with_tool(volume, spheres, tool, 5.75)
     assert pairing is not None
     assert {s.number: s.status for s in ordered if s.number} == {1: "partial", 2: "ok", 3: "deformed"}
+
+
+@pytest.mark.parametrize("fit_rms_mm, off_mm, numbered", [(0.57, 1.5, False), (0.03, 1.5, True), (0.57, 0.3, True)])
+def test_a_loose_spot_off_the_tools_pattern_does_not_number_two_spheres_their_distance_cannot(
+    fit_rms_mm, off_mm, numbered
+):
+    # A clean sphere at marker 3 and a partial one at marker 2: their distance is the tool's 2-3 distance, and which
+    # is which it cannot say. A spot cut by the field of view lies where marker 1 would be were the two the other way
+    # round (the tool turned half a turn about an axis across their midpoint), off_mm from it: with it the tool's
+    # distances pair all three, numbering the clean sphere as marker 2 (fresh wide family seed 47003: FRE 1.05 mm,
+    # the spot 0.57 mm RMS off its ball, the clean sphere 55.9 mm from the marker it was given). A spot that fits its
+    # ball loosely and lies over PAIRING_TOLERANCE_MM / 4 off the pattern numbers nothing; one that fits it well, or
+    # lies on the pattern, is a sphere, and its pairing stands.
+    from RAMSICPRegistrationLib.image.marker_spheres import MarkerSphere, _pair_with_tool
+
+    tool = tool_marker_geometry()
+    pose = make_transform(rotation_about_axis(np.array([0.4, -0.2, 0.9]), 0.6), np.array([20.0, -40.0, 10.0]))
+    centres = apply_transform(pose, tool)
+    middle, along = (centres[1] + centres[2]) / 2.0, centres[2] - centres[1]
+    across = np.cross(along, centres[0] - centres[1])
+    swap = rotation_about_axis(across / np.linalg.norm(across), np.pi)
+    spot = middle + swap @ (centres[0] - middle)
+    assert np.isclose(np.linalg.norm(spot - centres[2]), np.linalg.norm(centres[0] - centres[1]))
+    spot = spot + off_mm * (spot - centres[2]) / np.linalg.norm(spot - centres[2])  # farther from the clean one
+    spheres = [
+        MarkerSphere(spot, 5.6, fit_rms_mm, 0.69, "partial", 300, 0, "cut by the edge of the field of view"),
+        MarkerSphere(centres[2], 5.7, 0.03, 0.81, "ok", 300, 0, ""),
+        MarkerSphere(centres[1], 5.7, 0.04, 0.67, "partial", 300, 0, "a cap missing?"),
+    ]
+    volume = analytic_volume([], spacing=(4.0, 4.0, 4.0), size_mm=(400.0, 400.0, 400.0), background_hu=-1000.0)
+    ordered, pairing, _, warnings, _ = _pair_with_tool(volume, spheres, tool, 5.75)
+    if numbered:
+        assert pairing is not None and {s.number for s in ordered if s.status == "ok"} == {2}
+        return
+    assert pairing is None and not any(s.number for s in ordered)
+    assert "those at its distances fit it only to" in warnings[0] and "fit a ball only to 0.57 mm RMS" in warnings[0]

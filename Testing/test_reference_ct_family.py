@@ -503,6 +503,45 @@ def test_the_inside_a_dim_brackets_hole_joins_to_the_outside_is_plugged_where_th
     assert score.coverage >= 0.85 and score.ipc_on_body <= 0.002 * score.ipc_points
 
 
+def test_a_bone_along_the_round_field_of_views_edge_is_not_filled_with_the_tissue_between_them():
+    """Drawn family seed 48024: a flat bone 12.6 mm thick (1.5 mm of 1,165 HU cortex round a 434 HU inside, so solid
+    at the threshold) under 6.7 mm of tissue, running along a round field of view's edge, a steel pin through it.
+    Filled with the padding taken for the CT's side, the tissue between the bone and the padding was the object's
+    inside, 27 mm thick, its rim 190 HU dimmer than it, and the bone was refused as a solid frame beside its
+    spheres with 87 cm^3 of it in view. Filled without the padding, its rim is its cortex (+498 HU;
+    ``bone_recognition._ObjectShape._not_walled_by_the_padding``): 16,688 IPC points, all on the bone, none on the
+    body (40 % of the bone in view covered: the pin's surroundings and the field of view's edge are left out)."""
+    volume, truth = make_family_ct(48024, "full")
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 10000
+    assert score.ipc_on_bone == score.ipc_points and score.ipc_on_body == 0 and score.coverage >= 0.35
+
+
+def test_a_thin_bone_that_coarse_cells_cannot_cut_off_its_bar_is_cut_on_finer_ones():
+    """Wide family seed 40193: an 8.4 mm square bar of 2,352 HU resting on a flat bone 9.7 mm thick (2 mm of 1,992 HU
+    cortex round 504 HU), joining it to an 11.2 mm plate of 1,736 HU: one object of 189 cm^3, measured on cells of
+    1.4 x 1.4 x 1.8 mm (``bone_recognition.MAX_CELLS``), where no opening lies between the bar's half width and the
+    bone's half thickness, and the CT was refused with 60 cm^3 of bone in view. Refused so, the image side looks once
+    more on grids of FINE_MAX_CELLS (its voxels, 0.7 x 0.7 x 0.9 mm): 37,117 IPC points, all on the bone, 95.8 % of
+    it covered."""
+    volume, truth = make_family_ct(40193, "full", overrides=wide_bracket_overrides(40193))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_points > 30000
+    assert score.ipc_on_bone == score.ipc_points and score.ipc_on_body == 0 and score.coverage >= 0.9
+
+
+def test_a_loose_spot_at_the_tools_distances_numbers_no_sphere_of_a_cut_reference_body():
+    """Fresh wide family seed 47003: markers 1 and 4 cut by the field of view, 2 damaged, 3 whole. A spot at the
+    field of view's edge (0.57 mm RMS off its ball) lay where marker 1 would be were markers 2 and 3 the other way
+    round; the tool's distances paired the three to 1.05 mm (FRE), and the clean sphere, marker 3, was numbered 2:
+    a usable sphere 55.9 mm from its marker. Now no sphere is numbered (``marker_spheres.LOOSE_PAIRING_FRE_MM``),
+    and the IPC is the bone's as before (24,689 points)."""
+    volume, truth = make_family_ct(47003, "full", overrides=wide_bracket_overrides(47003))
+    image, score = run(volume, truth)
+    assert score.false == 0 and not image.usable and image.pairing is None
+    assert not score.refused and score.ipc_on_bone == score.ipc_points > 20000
+
+
 def test_a_flat_bone_whose_inside_a_dim_brackets_hole_opens_is_not_refused_as_a_solid_frame():
     """Wide seed 40232: a 116 HU bracket 9.3 mm wide inserted into a flat bone 10.3 mm thick (1.1 mm of 1,389 HU
     cortex round a 163 HU inside), aslant the grid and cut by the CT's box on five sides, its plastic spheres (116 HU)

@@ -57,6 +57,11 @@ logger = logging.getLogger(__name__)
 CELL_MM = 1.0
 #: ... coarser for a large object, so that its grid has about this many cells at most.
 MAX_CELLS = 250_000
+#: ... or this many, when no bone is found on the coarser grids (``ct_pipeline.process_ct`` looks once more): cells of
+#: 1.4 x 1.4 x 1.8 mm on an object that held a flat bone 9.7 mm thick and the plate its 8.4 mm bar joins (wide family
+#: seed 40193, 60 cm^3 of bone in view) left no opening between the bar's half width and the bone's half thickness,
+#: and the CT was refused; on its voxels (0.7 x 0.7 x 0.9 mm) the bar is cut off (37,117 IPC points, all on the bone).
+FINE_MAX_CELLS = 1_000_000
 #: Smallest bone (mm^3, cavities filled): a 16 mm piece of a thin shaft.
 MIN_BONE_MM3 = 1500.0
 #: A bone is at least twice this thick somewhere (mm).
@@ -203,7 +208,7 @@ class BoneRecognition:
     body_followed: np.ndarray = None
 
 
-def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
+def recognise_bone(volume, segmentation, spheres, spheres_sure=True, max_cells=MAX_CELLS):
     """Recognise the bone among a segmentation's objects (see the module docstring).
 
     Args:
@@ -217,13 +222,14 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
             with it as the body's takes the bone for the body: then no cut may leave a piece with a cortex round its
             inside on the body's side larger than the bone it keeps (a spot of the bone tied by chance costs the bone
             only the piece round it: 25005).
+        max_cells: the most cells an object's grid has (MAX_CELLS, or FINE_MAX_CELLS for a second look).
 
     Raises:
         ValueError: no object is plausibly bone; the message lists what was found.
     """
     # Each object's voxel count and box, once: a pass over the whole segmentation, one slab per core.
     slices, sizes = boxes_and_sizes(segmentation.labels)
-    census = _Census(sizes, slices, {})
+    census = _Census(sizes, slices, {}, max_cells)
     held = _held_by_spheres(volume, segmentation, spheres, census)
     plain = _body_seeds(volume, segmentation, spheres, census, held, dim_links=False)
     unsure = set() if spheres_sure else {label for label, held in plain.items() if held}
@@ -254,11 +260,12 @@ def recognise_bone(volume, segmentation, spheres, spheres_sure=True):
 class _Census:
     """The segmentation's objects: ``sizes`` (L + 1,) voxels per label (0 for the background), ``slices`` their boxes
     (``ndimage.find_objects``, label 1 first), ``shapes`` {label: _ObjectShape} as they are measured (a second
-    recognition, with other seeds, measures none again)."""
+    recognition, with other seeds, measures none again), on grids of at most ``max_cells`` cells."""
 
     sizes: np.ndarray
     slices: list
     shapes: dict
+    max_cells: int = MAX_CELLS
 
 
 def _within_reach_of_dim_parts(volume, segmentation, spheres, seeds, census):
@@ -292,7 +299,10 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
     weighed = [label for label in objects if sizes[label] * voxel_mm3 >= MIN_BONE_MM3 / 4.0]
     unmeasured = [label for label in weighed if label not in census.shapes]
     shapes = in_parallel(
-        *[partial(_ObjectShape, volume, segmentation, label, slices[label - 1]) for label in unmeasured]
+        *[
+            partial(_ObjectShape, volume, segmentation, label, slices[label - 1], census.max_cells)
+            for label in unmeasured
+        ]
     )
     census.shapes.update(zip(unmeasured, shapes))
     # The solid parts of the objects that may hold a bone and a body, measured at once too.
@@ -566,11 +576,9 @@ class _Cut:
 class _ObjectShape:
     """One object on a grid of about CELL_MM: filled mask, depth (mm from its surface), block mean and max HU."""
 
-    def __init__(self, volume, segmentation, label, region):
+    def __init__(self, volume, segmentation, label, region, max_cells=MAX_CELLS):
         spacing = volume.spacing
-        extent_mm = np.array([s.stop - s.start for s in region]) * spacing
-        cell_mm = max(CELL_MM, float(np.prod(extent_mm) / MAX_CELLS) ** (1.0 / 3.0))
-        self.block = np.maximum(1, np.floor(cell_mm / spacing + 1e-6)).astype(int)
+        self.block = _grid_block(region, spacing, max_cells)
         self.cell = spacing * self.block
         self.spacing = spacing
         self.label = label
@@ -604,7 +612,7 @@ class _ObjectShape:
         self.filled_mm3 = float(self.filled.sum() * np.prod(self.cell))
         self._solid_parts = None
         self._whole_measures = None
-        self._plugged_measures = None
+        self._refill = None
 
     def verdict(self, spheres, filled=None, depth=None):
         """ObjectVerdict of the object (or of a part: its ``filled`` cells and their ``depth``). The whole object's
@@ -617,9 +625,9 @@ class _ObjectShape:
         verdict = "reference body" if spheres else _by_measures(volume, half, cortex)
         thin = verdict == "too small or thin" and volume >= MIN_BONE_MM3
         if (verdict == "bone without a cortex" or thin) and filled is self.filled:
-            walled = self._walled_by_the_padding() or self._plugged()
-            if walled is not None:
-                return self.verdict(spheres, *walled)
+            refilled = self._refilled()
+            if refilled is not None:
+                return self.verdict(spheres, *refilled)
         return ObjectVerdict(self.label, volume, half, cortex, spheres, verdict, air_inside)
 
     def _whole(self):
@@ -663,6 +671,33 @@ class _ObjectShape:
         cortex = self._cortex(filled, depth)
         return (filled, depth) if cortex is not None and cortex >= CORTEX_CONTRAST_HU else None
 
+    def _refilled(self):
+        """(filled, depth) of the object filled otherwise, when its fill gives it no cortex and another does: with
+        more of a round field of view's padding for the CT's side, plugged, or with none of it (the first that gives
+        a cortex); None otherwise. Measured once (the recognition asks for the whole object's verdict again)."""
+        if self._refill is None:
+            self._refill = (self._walled_by_the_padding() or self._plugged() or self._not_walled_by_the_padding(),)
+        return self._refill[0]
+
+    def _not_walled_by_the_padding(self):
+        """(filled, depth) of the object filled with a round field of view's padding not taken for the CT's side, when
+        that gives it a cortex; None otherwise. Where a bone solid at the threshold (its cancellous inside above it)
+        runs along the field of view's edge, the tissue between the two is enclosed by the bone and the padding:
+        filled, it was the object's inside and most of its rim, and the bone was refused as a solid frame (fresh
+        family seed 48024: a flat bone 12.6 mm thick of 1,165 HU round 434 HU, under 6.7 mm of tissue, the fill 27 mm
+        thick with its rim 190 HU dimmer than its inside; filled without the padding, +498 HU)."""
+        if not self._padding.any():
+            return None
+        filled = _filled(self.mask, self._open_sides)
+        if filled.sum() >= self.filled.sum():
+            return None
+        depth = self._depth_of(filled)
+        cortex = self._cortex(filled, depth)
+        if cortex is None or cortex < CORTEX_CONTRAST_HU:
+            return None
+        logger.info("object %d filled without the padding: a cortex round its inside (+%.0f HU)", self.label, cortex)
+        return filled, depth
+
     def _plugged(self):
         """(filled, depth) of the object with the inside it encloses once the holes in its walls up to twice
         ``plugs.PLUG_MM`` wide are plugged (``plugs``), when that gives it a cortex; None otherwise. A bracket below
@@ -670,14 +705,7 @@ class _ObjectShape:
         outside: a flat bone cut by the CT's box on all sides but one, its inside below the threshold, was two tables
         of cortex to the fill, its rim no brighter than its inside, and it was refused as a solid frame (family seed
         40232 with wide brackets: a 116 HU bracket 9.3 mm wide into a 1.1 mm cortex round a 163 HU inside; 115 cm^3
-        of bone in view). Measured once, and only when a side of the box is off the CT's edge to tell the outside
-        by."""
-        if self._plugged_measures is None:
-            self._plugged_measures = (self._find_plugged(),)
-        return self._plugged_measures[0]
-
-    def _find_plugged(self):
-        """``_plugged``."""
+        of bone in view). Only when a side of the box is off the CT's edge to tell the outside by."""
         if not self._open_sides:
             return None
         plug = closed_holes(self.mask, self.cell)
@@ -1244,6 +1272,29 @@ class _ObjectShape:
     def _volume_ijk_to_ras(self, ijk):
         matrix = self._ijk_to_ras
         return ijk @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def _grid_block(region, spacing, max_cells):
+    """(3,) voxels per cell along each axis of the grid an object in the box ``region`` (3 slices) is measured on:
+    cells of about CELL_MM, coarser for a large object so that its grid has about ``max_cells`` cells at most."""
+    extent_mm = np.array([s.stop - s.start for s in region]) * spacing
+    cell_mm = max(CELL_MM, float(np.prod(extent_mm) / max_cells) ** (1.0 / 3.0))
+    return np.maximum(1, np.floor(cell_mm / spacing + 1e-6)).astype(int)
+
+
+def finer_grids_possible(volume, segmentation):
+    """True when an object large enough to be looked at as bone was measured on a grid coarser than FINE_MAX_CELLS
+    would make it: only then is a second recognition on the finer grids worth its time."""
+    slices, sizes = boxes_and_sizes(segmentation.labels)
+    voxel_mm3 = float(np.prod(volume.spacing))
+    return any(
+        (
+            _grid_block(slices[label - 1], volume.spacing, MAX_CELLS)
+            > _grid_block(slices[label - 1], volume.spacing, FINE_MAX_CELLS)
+        ).any()
+        for label in segmentation.object_labels
+        if slices[label - 1] is not None and sizes[label] * voxel_mm3 >= MIN_BONE_MM3 / 4.0
+    )
 
 
 def _filled(mask, open_sides=(), padding=None):

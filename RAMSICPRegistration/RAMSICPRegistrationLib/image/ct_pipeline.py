@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bone_recognition import FINE_MAX_CELLS, MAX_CELLS, finer_grids_possible
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
 from .ipc_self_check import describe as describe_spheres_in_surface
 from .ipc_self_check import describe_unfound, solid_body_taken_for_bone, spheres_in_surface, unfound_spheres_in_surface
@@ -102,22 +103,19 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     seconds["marker_spheres"] = time.perf_counter() - clock
     report("bone surface", 2, 3)
     clock = time.perf_counter()
-    body_spheres = reference_body_spheres(detection)
     try:
-        segmentation = _with_bone(volume, segmentation, detection, body_spheres)
-        surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
-    except ValueError as error:  # the spheres found are the user's all the same
-        raise NoBoneSurface(str(error), detection) from error
-    solid = solid_body_taken_for_bone(volume, segmentation, detection.spheres)
-    if solid:
-        raise NoBoneSurface(solid, detection)
-    on_spheres = spheres_in_surface(surface.points, body_spheres)
-    if on_spheres:  # the last word: an IPC that is the reference body's never leaves
-        raise NoBoneSurface(describe_spheres_in_surface(on_spheres), detection)
-    if tool_markers is not None and detection.pairing is None and not detection.tied:
-        unfound = unfound_spheres_in_surface(surface.points, surface.triangles, tool_markers)
-        if unfound:  # ... nor one that holds spheres no look at the CT found (sunk into a brighter plate)
-            raise NoBoneSurface(describe_unfound(unfound), detection)
+        segmentation, surface = _bone_and_surface(volume, segmentation, detection, tool_markers, fill_cavities)
+    except NoBoneSurface as error:
+        if not finer_grids_possible(volume, segmentation):
+            raise
+        # Coarse cells can leave no opening between a bracket's width and a thin bone's thickness.
+        logger.info("no bone surface with the objects measured on coarse grids: once more on finer ones")
+        try:
+            segmentation, surface = _bone_and_surface(
+                volume, segmentation, detection, tool_markers, fill_cavities, FINE_MAX_CELLS
+            )
+        except NoBoneSurface:
+            raise error from None
     seconds["surface"] = time.perf_counter() - clock
     spheres = label_sphere_voxels(volume, segmentation, detection.spheres)
     report("bone surface", 3, 3)
@@ -135,7 +133,29 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
     )
 
 
-def _with_bone(volume, segmentation, detection, body_spheres):
+def _bone_and_surface(volume, segmentation, detection, tool_markers, fill_cavities, max_cells=MAX_CELLS):
+    """(segmentation with its bone, BoneSurface): the bone recognised on grids of at most ``max_cells`` cells, its
+    surface, and the IPC's checks against the reference body (``ipc_self_check``); raises NoBoneSurface."""
+    body_spheres = reference_body_spheres(detection)
+    try:
+        segmentation = _with_bone(volume, segmentation, detection, body_spheres, max_cells)
+        surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
+    except ValueError as error:  # the spheres found are the user's all the same
+        raise NoBoneSurface(str(error), detection) from error
+    solid = solid_body_taken_for_bone(volume, segmentation, detection.spheres)
+    if solid:
+        raise NoBoneSurface(solid, detection)
+    on_spheres = spheres_in_surface(surface.points, body_spheres)
+    if on_spheres:  # the last word: an IPC that is the reference body's never leaves
+        raise NoBoneSurface(describe_spheres_in_surface(on_spheres), detection)
+    if tool_markers is not None and detection.pairing is None and not detection.tied:
+        unfound = unfound_spheres_in_surface(surface.points, surface.triangles, tool_markers)
+        if unfound:  # ... nor one that holds spheres no look at the CT found (sunk into a brighter plate)
+            raise NoBoneSurface(describe_unfound(unfound), detection)
+    return segmentation, surface
+
+
+def _with_bone(volume, segmentation, detection, body_spheres, max_cells=MAX_CELLS):
     """``with_bone``, and once more as if no sphere were seen when the body's spheres are only tied by the tool's
     distances (``MarkerDetection.tied``: none numbered) and no bone is found with them as the body's. Two sphere-like
     spots of the body can lie at one of the tool's distances by chance (family seed 19089: a 10.8 mm bracket's end,
@@ -146,12 +166,12 @@ def _with_bone(volume, segmentation, detection, body_spheres):
     rather than a piece of the frame. The IPC must still hold none of them (``spheres_in_surface``, in
     ``process_ct``); when the second look finds no bone either, the first's message is the one raised."""
     try:  # (spheres are tied only when none could be paired: ``detect_marker_spheres``)
-        return with_bone(volume, segmentation, body_spheres, spheres_sure=not detection.tied)
+        return with_bone(volume, segmentation, body_spheres, not detection.tied, max_cells)
     except ValueError as error:
         if not detection.tied:
             raise
         logger.info("no bone with the spheres tied by the tool's distances as the body's: once more without them")
         try:
-            return with_bone(volume, segmentation, [])
+            return with_bone(volume, segmentation, [], max_cells=max_cells)
         except ValueError:
             raise error from None

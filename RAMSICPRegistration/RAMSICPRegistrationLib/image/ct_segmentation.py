@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from . import dim_parts
 from .beyond_metal import beyond_metal
-from .bone_recognition import CORTEX_CONTRAST_HU, recognise_bone
+from .bone_recognition import CORTEX_CONTRAST_HU, MAX_CELLS, recognise_bone
 from .bracket_stub import MAX_RADIUS_MM, bracket_line_beyond, bracket_stub
 from .components import label_components
 from .envelope import bone_envelope
@@ -173,10 +173,11 @@ def reference_body_spheres(detection):
     return clean if len(clean) >= 3 else []
 
 
-def with_bone(volume, segmentation, spheres, spheres_sure=True):
+def with_bone(volume, segmentation, spheres, spheres_sure=True, max_cells=MAX_CELLS):
     """The segmentation with its bone recognised (``bone_recognition``), knowing the marker spheres found
-    (``spheres_sure``: False when they are only tied by the tool's distances, ``recognise_bone``)."""
-    recognition = recognise_bone(volume, segmentation, spheres, spheres_sure)
+    (``spheres_sure``: False when they are only tied by the tool's distances, ``recognise_bone``; ``max_cells``:
+    the most cells of an object's grid)."""
+    recognition = recognise_bone(volume, segmentation, spheres, spheres_sure, max_cells)
     others = tuple(label for label in segmentation.object_labels if label != recognition.label)
     return replace(
         segmentation,

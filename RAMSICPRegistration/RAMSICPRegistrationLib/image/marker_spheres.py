@@ -162,6 +162,13 @@ NEAR_EXPECTED_MM = 5.0
 #: A pairing of the tool's markers with spheres that are not all clean holds at least this many round ones (clean or
 #: partial): the numbers of the others rest on spots that fit no sphere.
 MIN_ROUND_PAIRED = 2
+#: ... and when it fits the tool's pattern only to more than this FRE (mm), the spots among them that fit their ball
+#: loosely (``_fits_loosely``) must not be what numbers the others: fresh wide family seed 47003, two true spheres
+#: (one clean, one damaged, 55.9 mm apart: which is which, their distance cannot say) and a spot cut by the field
+#: of view (0.57 mm RMS off its ball) 48.8 and 102.7 mm from them, where the tool's third marker would be if the
+#: two were the other way round (50.0 and 103.1 mm): FRE 1.05 mm, and the clean sphere numbered as the wrong marker.
+#: The 85 pairings of wide seeds 40000-40099 fit to 0.18 mm at most, all right (none with a loose spot).
+LOOSE_PAIRING_FRE_MM = 0.5
 STATUSES = ("ok", "partial", "deformed")
 
 
@@ -762,7 +769,27 @@ def _clean_first_pairing(spheres, tool_markers):
             f"those at its distances are {round_paired} round sphere(s) and "
             f"{int((pairing.indices >= 0).sum()) - round_paired} spot(s) that fit no sphere"
         )
+    loose = [int(row) for row in pairing.indices if row >= 0 and _fits_loosely(spheres[row])]
+    if loose and pairing.fre_mm > LOOSE_PAIRING_FRE_MM:
+        # The numbers would rest on spots that fit a ball only loosely and lie off the tool's pattern: they are
+        # given only if the others pair without them.
+        kept = [row for row in range(len(spheres)) if row not in loose]
+        try:
+            again = _clean_first_pairing([spheres[row] for row in kept], tool_markers)
+        except ValueError:
+            raise TooFewRoundSpheres(
+                f"those at its distances fit it only to {pairing.fre_mm:.2f} mm (FRE), and {len(loose)} of them fit "
+                f"a ball only to {max(spheres[row].residual_mm for row in loose):.2f} mm RMS: no number rests on such "
+                "spots"
+            ) from None
+        return replace(again, indices=np.array([kept[row] if row >= 0 else -1 for row in again.indices]))
     return pairing
+
+
+def _fits_loosely(sphere):
+    """A flagged sphere whose surface lies off its ball by more than RESIDUAL_LIMIT_MM RMS: a spot cut by the field
+    of view or a round end of something, whose centre may be off by a millimetre."""
+    return sphere.status != "ok" and sphere.residual_mm > RESIDUAL_LIMIT_MM
 
 
 def _is_round(sphere):
