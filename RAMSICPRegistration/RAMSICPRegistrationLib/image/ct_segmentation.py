@@ -1180,8 +1180,11 @@ def _plugged_inside(image, levels, walls, contacts, bone, on_edge, padding, low,
     inside = _enclosed(image, levels[:1], walls | plug, low, high, volume)
     if inside is None:
         return None
+    inside &= ~bone
+    if not inside.any():
+        return inside
     between = between_sides(bone, on_edge, padding) >= 2
-    inside = inside_pieces(inside & ~bone, between, np.prod(volume.spacing))
+    inside = inside_pieces(inside, between, np.prod(volume.spacing))
     if not inside.any():
         return inside
     # The plug reaches into the hole and under the cortex round it: the inside goes on into it there, between the
