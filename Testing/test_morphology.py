@@ -20,6 +20,7 @@ from RAMSICPRegistrationLib.image.morphology import (
     erode,
     labelled,
     open_by_cube,
+    reaching_no_side,
     unblock,
 )
 
@@ -149,3 +150,18 @@ def test_the_bounding_box_is_widened_by_its_pad_per_axis_and_cut_to_the_volume()
     assert low.tolist() == [1, 3, 5] and high.tolist() == [7, 12, 9]
     low, high = bounding_box(mask, pad=[0, 1, 3])
     assert low.tolist() == [3, 4, 4] and high.tolist() == [5, 11, 9]
+
+
+def test_reaching_no_side_keeps_what_walls_enclose_and_not_what_leads_out_of_the_box():
+    # A 10 x 10 x 10 box: a closed 6 x 6 x 6 shell of walls round a 4 x 4 x 4 cavity (64 voxels), whose outside
+    # reaches the box's high side along axis 0 (open). The cavity is enclosed; the outside is not. A hole in the
+    # shell joins the two: then nothing is.
+    walls = np.zeros((10, 10, 10), dtype=bool)
+    walls[2:8, 2:8, 2:8] = True
+    walls[3:7, 3:7, 3:7] = False
+    enclosed = reaching_no_side(~walls, [(0, -1)])
+    assert enclosed.sum() == 64 and enclosed[3:7, 3:7, 3:7].all()
+    walls[7, 4, 4] = False  # a hole through the shell's high face
+    assert not reaching_no_side(~walls, [(0, -1)]).any()
+    # With the low side along axis 2 open instead, the outside, and the cavity through the hole, lead out there.
+    assert not reaching_no_side(~walls, [(2, 0)]).any()

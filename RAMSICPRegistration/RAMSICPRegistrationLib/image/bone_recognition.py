@@ -46,7 +46,7 @@ from scipy import ndimage
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, means_noise_hu, plateau_from_nearest
 from .components import boxes_and_sizes
-from .morphology import block_max, dilate, dilate_by_cube, unblock
+from .morphology import block_max, dilate, dilate_by_cube, reaching_no_side, unblock
 from .parallel import in_parallel
 from .plugs import between_sides, closed_holes, inside_pieces
 from .sphere_candidates import block_means
@@ -296,7 +296,7 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
     voxel_mm3 = float(np.prod(volume.spacing))
     sizes, slices = census.sizes, census.slices
     objects = sorted(segmentation.object_labels, key=lambda label: -sizes[label])[:MAX_OBJECTS]
-    weighed = [label for label in objects if sizes[label] * voxel_mm3 >= MIN_BONE_MM3 / 4.0]
+    weighed = [label for label in objects if _weighed(sizes[label], voxel_mm3)]
     unmeasured = [label for label in weighed if label not in census.shapes]
     shapes = in_parallel(
         *[
@@ -667,9 +667,8 @@ class _ObjectShape:
         filled = _filled(self.mask, self._open_sides, padding)
         if filled.sum() <= self.filled.sum():
             return None
-        depth = self._depth_of(filled)
-        cortex = self._cortex(filled, depth)
-        return (filled, depth) if cortex is not None and cortex >= CORTEX_CONTRAST_HU else None
+        walled = self._with_a_cortex(filled)
+        return None if walled is None else walled[:2]
 
     def _refilled(self):
         """(filled, depth) of the object filled otherwise, when its fill gives it no cortex and another does: with
@@ -691,12 +690,13 @@ class _ObjectShape:
         filled = _filled(self.mask, self._open_sides)
         if filled.sum() >= self.filled.sum():
             return None
-        depth = self._depth_of(filled)
-        cortex = self._cortex(filled, depth)
-        if cortex is None or cortex < CORTEX_CONTRAST_HU:
+        unwalled = self._with_a_cortex(filled)
+        if unwalled is None:
             return None
-        logger.info("object %d filled without the padding: a cortex round its inside (+%.0f HU)", self.label, cortex)
-        return filled, depth
+        logger.info(
+            "object %d filled without the padding: a cortex round its inside (+%.0f HU)", self.label, unwalled[2]
+        )
+        return unwalled[:2]
 
     def _plugged(self):
         """(filled, depth) of the object with the inside it encloses once the holes in its walls up to twice
@@ -711,29 +711,30 @@ class _ObjectShape:
         plug = closed_holes(self.mask, self.cell)
         if not plug.any():
             return None
-        holes, _ = ndimage.label(~self.mask & ~plug & ~self._padding)
-        outside = np.unique(
-            np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in self._open_sides])
-        )
-        enclosed = (holes > 0) & ~np.isin(holes, outside) & ~self.filled
+        enclosed = reaching_no_side(~self.mask & ~plug & ~self._padding, self._open_sides) & ~self.filled
         open_sides = set(self._open_sides)
         on_edge = [((axis, 0) not in open_sides, (axis, -1) not in open_sides) for axis in range(3)]
         between = between_sides(self.mask | self._padding, on_edge, None) >= 2
         inside = inside_pieces(enclosed, between, np.prod(self.cell))
         if not inside.any():
             return None
-        filled = self.filled | inside
-        depth = self._depth_of(filled)
-        cortex = self._cortex(filled, depth)
-        if cortex is None or cortex < CORTEX_CONTRAST_HU:
+        plugged = self._with_a_cortex(self.filled | inside)
+        if plugged is None:
             return None
         logger.info(
             "object %d encloses %.1f cm^3 once the holes in its walls are plugged: a cortex round it (+%.0f HU)",
             self.label,
             inside.sum() * np.prod(self.cell) / 1000.0,
-            cortex,
+            plugged[2],
         )
-        return filled, depth
+        return plugged[:2]
+
+    def _with_a_cortex(self, filled):
+        """(filled, depth, cortex contrast HU) of the object filled so (``filled`` cells), when that gives it a cortex
+        (CORTEX_CONTRAST_HU); None otherwise."""
+        depth = self._depth_of(filled)
+        cortex = self._cortex(filled, depth)
+        return (filled, depth, cortex) if cortex is not None and cortex >= CORTEX_CONTRAST_HU else None
 
     def _cortex(self, filled, depth, round_the_inside=False):
         """The rim's brightness (HU, 75th percentile of the cells' maxima) less the inside's (median of the deepest
@@ -1282,6 +1283,12 @@ def _grid_block(region, spacing, max_cells):
     return np.maximum(1, np.floor(cell_mm / spacing + 1e-6)).astype(int)
 
 
+def _weighed(voxels, voxel_mm3):
+    """True for an object of ``voxels`` voxels (of ``voxel_mm3``) large enough to be measured as a bone: filled, it
+    may reach MIN_BONE_MM3."""
+    return voxels * voxel_mm3 >= MIN_BONE_MM3 / 4.0
+
+
 def finer_grids_possible(volume, segmentation):
     """True when an object large enough to be looked at as bone was measured on a grid coarser than FINE_MAX_CELLS
     would make it: only then is a second recognition on the finer grids worth its time."""
@@ -1293,7 +1300,7 @@ def finer_grids_possible(volume, segmentation):
             > _grid_block(slices[label - 1], volume.spacing, FINE_MAX_CELLS)
         ).any()
         for label in segmentation.object_labels
-        if slices[label - 1] is not None and sizes[label] * voxel_mm3 >= MIN_BONE_MM3 / 4.0
+        if slices[label - 1] is not None and _weighed(sizes[label], voxel_mm3)
     )
 
 
@@ -1310,9 +1317,7 @@ def _filled(mask, open_sides=(), padding=None):
         edge = [np.take(holes, side, axis=a) for a in range(3) if a != axis for side in (0, -1)]
         filled |= (holes > 0) & ~np.isin(holes, np.unique(np.concatenate([e.ravel() for e in edge])))
     if 0 < len(open_sides) < 6:  # (none: it fills the field of view; all: the slices found its enclosed holes)
-        holes, _ = ndimage.label(~filled if padding is None else ~filled & ~padding)
-        outside = np.unique(np.concatenate([np.take(holes, side, axis=axis).ravel() for axis, side in open_sides]))
-        filled |= (holes > 0) & ~np.isin(holes, outside)
+        filled |= reaching_no_side(~filled if padding is None else ~filled & ~padding, open_sides)
     return filled
 
 

@@ -31,7 +31,17 @@ from .hounsfield import DEFAULT_THRESHOLD_HU, METAL_HU
 from .iso_surface import iso_surface
 from .marker_spheres import detect_marker_spheres
 from .metal import METAL_EDGE_MM, find_metal_zone
-from .morphology import all_behind, any_ahead, any_behind, bounding_box, dilate, erode, labelled, open_by_cube
+from .morphology import (
+    all_behind,
+    any_ahead,
+    any_behind,
+    bounding_box,
+    dilate,
+    erode,
+    labelled,
+    open_by_cube,
+    reaching_no_side,
+)
 from .parallel import in_parallel, in_slabs
 from .plugs import PLUG_MM, between_sides, inside_pieces
 from .rod_stub import rod_stub
@@ -1205,10 +1215,7 @@ def _open_sides(low, high, volume):
 def _enclosed_below(image, level, walls, open_sides, size):
     """``_enclosed`` at one ``level``: the regions darker than it, opened by a cube ``size`` voxels wide, that reach
     none of the box's ``open_sides``."""
-    opened = open_by_cube((image < level) & ~walls, size)
-    labels, count = ndimage.label(opened)
-    outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
-    return labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
+    return reaching_no_side(open_by_cube((image < level) & ~walls, size), open_sides)
 
 
 def _next_to_body(volume, segmentation, vertices_ijk):

@@ -13,7 +13,7 @@ import itertools
 from functools import partial
 
 import numpy as np
-from scipy import sparse
+from scipy import ndimage, sparse
 from scipy.sparse import csgraph
 
 
@@ -136,6 +136,15 @@ def labelled(labels, chosen):
     table[np.asarray(chosen, dtype=np.int64)] = True
     table[0] = False
     return table[labels]
+
+
+def reaching_no_side(free, open_sides):
+    """Booleans of ``free``'s shape: its regions (6-connected, ``ndimage.label``) that reach none of the box's
+    ``open_sides`` ([(axis, 0 or -1)], at least one: the sides off the CT's edge): what walls round them enclose, where
+    the rest leads out of the box."""
+    labels, count = ndimage.label(free)
+    outside = np.concatenate([np.unique(np.take(labels, side, axis=axis)) for axis, side in open_sides])
+    return labelled(labels, np.setdiff1d(np.arange(1, count + 1), outside))
 
 
 def _halves(shape, axis, step):
