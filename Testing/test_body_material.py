@@ -63,6 +63,33 @@ def test_a_level_needs_enough_flat_cells_and_levels_stand_apart():
     assert levels_among(grid, few) == []
 
 
+def thin_bar(cells_wide, noise_hu, bar_hu=1300.0):
+    """(mean_hu (20, 20, 30), bar): a square bar ``cells_wide`` cells across and 26 long in air, blurred by 0.6 cells,
+    with ``noise_hu`` of white noise."""
+    grid = np.full((20, 20, 30), AIR_HU)
+    bar = np.zeros(grid.shape, dtype=bool)
+    bar[8 : 8 + cells_wide, 8 : 8 + cells_wide, 2:28] = True
+    grid[bar] = bar_hu
+    grid = ndimage.gaussian_filter(grid, 0.6) + np.random.default_rng(0).normal(0.0, noise_hu, grid.shape)
+    return grid.astype(np.float32), bar
+
+
+def test_a_thin_bars_level_is_read_among_its_deep_cells_where_every_neighbourhood_meets_its_blur():
+    """A bar 4 cells across (a 7.3 mm bar on cells of 1.5 mm: wide seed 40278), or 6 under 25 HU of noise: every
+    3 x 3 x 3 neighbourhood of its deep cells reaches the blur at its surface or spans the noise, and no level is read;
+    with the neighbourhoods taken among those cells, the bar's is, within 15 HU (its 2 x 2 core is a cell from the
+    blur on every side). Among cells that hold two materials, the step between them is still no level."""
+    for cells_wide, noise, deep_by in ((4, 15.0, 1), (6, 25.0, 2)):
+        grid, bar = thin_bar(cells_wide, noise)
+        deep = ndimage.binary_erosion(bar, iterations=deep_by)
+        assert levels_among(grid, deep) == []
+        levels = levels_among(grid, deep, neighbours_among_cells=True)
+        assert len(levels) == 1 and abs(levels[0] - 1300.0) < 15.0
+    grid, bone, bar, _ = bar_on_a_flat_bone(noise_hu=10.0)
+    levels = levels_among(grid, bone | bar, neighbours_among_cells=True)
+    assert len(levels) == 2 and abs(levels[0] - INSIDE_HU) < 5.0 and abs(levels[1] - BAR_HU) < 5.0
+
+
 def test_the_bars_plateau_is_the_bar_and_not_the_bone_it_rests_on():
     for seed in range(3):
         grid, bone, bar, inside = bar_on_a_flat_bone(noise_hu=15.0, seed=seed)

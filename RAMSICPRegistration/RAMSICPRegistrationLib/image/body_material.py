@@ -36,11 +36,17 @@ _MEDIAN_DIFFERENCE_SIGMAS = 0.954
 MIN_LEVEL_CELLS = 5
 
 
-def levels_among(mean_hu, cells):
+def levels_among(mean_hu, cells, neighbours_among_cells=False):
     """The levels (HU) of the plateaus among ``cells`` (booleans over the grid of ``mean_hu``, (I, J, K) block means),
     the most common first, each more than BAND_HU from the others: the flat cells' means, in bins BAND_HU wide, each
-    bin read as the median of its cells and its two neighbours' (a level on a bin's edge is read whole)."""
-    flat = box_max(mean_hu, 3) + box_max(-mean_hu, 3) <= BAND_HU  # the neighbourhood's maximum less its minimum
+    bin read as the median of its cells and its two neighbours' (a level on a bin's edge is read whole). With
+    ``neighbours_among_cells``, a cell's neighbourhood is flat when its neighbours among the ``cells`` are (the cells
+    deep in an object: the blur at its surface left out)."""
+    if neighbours_among_cells:
+        brightest = box_max(np.where(cells, mean_hu, -np.inf), 3)
+        flat = brightest + box_max(np.where(cells, -mean_hu, -np.inf), 3) <= BAND_HU
+    else:
+        flat = box_max(mean_hu, 3) + box_max(-mean_hu, 3) <= BAND_HU  # the neighbourhood's maximum less its minimum
     values = mean_hu[cells & flat]
     if values.size < MIN_LEVEL_CELLS:
         return []

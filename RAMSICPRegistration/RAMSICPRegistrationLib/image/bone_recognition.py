@@ -21,7 +21,8 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    nearly as thick as the bone is not parted from it by any opening: the body is then **followed by its material**
    into what the cut kept (``body_material``: a bracket's or a frame's inside is a plateau of one brightness that
    goes on across the cut; a bone's inside is one too, but its cortex surrounds it), and where no opening parts
-   them at all, from the body's seeds into an object that looks like bone as a whole. Where the
+   them at all, from the body's seeds (or, where none is seen, its solid parts) into an object that looks like bone
+   as a whole; the small pieces its plateaus split off the bone (posts of another material) go with it. Where the
    body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a bracket's
    round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a cortex round
    its inside on the body's side (for tied spheres: larger than the bone kept) is no cut.
@@ -153,6 +154,12 @@ MATERIAL_RING_MM = 2.5
 #: body's own part (held-out wide draw 3009: a bar's 955 HU end inserted into its 1,795 HU plate, 2.03 times the plate
 #: kept with the bone, the bone's inside -63 HU).
 MATERIAL_CAVITY_SHARE = 0.25
+#: ... and where the bone a plateau is taken from has a rim dimmer than a cortex, the rest keeps this share of it at
+#: least (its contrast, HU): a bracket's plateau taken leaves the bone's rim as it was (49030: +96, +96, +95, +93 HU
+#: after each of three plateaus); the bone's own would leave a rim dimmer, and one that was no bone's before is none
+#: (wide seed 40131: the posts' plateau taken from +69 HU left +87 HU, mostly a 13.6 mm bar of 612 HU; taken for the
+#: bone, 80 % of the IPC was the bar's). ``_keeps_the_rim``.
+KEPT_RIM_SHARE = 0.9
 
 
 @dataclass(frozen=True)
@@ -333,6 +340,8 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
             solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
             if solid:  # a body whose spheres are out of view or sunk into its frame, joined to the bone
                 verdict, bone = shape.cut_off_body(solid)
+                if bone is None:
+                    verdict, bone = shape.followed_from_seeds(solid, no_bone_on_body=True) or (verdict, bone)
             elif unseen and verdict.verdict.startswith("bone") and shape.filled_mm3 >= 2.0 * MIN_BONE_MM3:
                 # No sphere says where the body is and no opening splits a solid part off: a frame thinner than
                 # the bracket that joins it (32007: a 5 mm plate round its spheres on a 6.9 mm bracket inserted into
@@ -898,7 +907,7 @@ class _ObjectShape:
         if followed is start:
             return None
         verdict = self.verdict(0, followed.bone, self._depth_of(followed.bone))
-        if not _bone_cut_off(verdict):
+        if not _keeps_the_rim(verdict, contrast):
             return None
         if self._takes_bone(self.filled & ~followed.bone, followed.bone, no_bone_on_body, no_more_bone_on_body):
             return None
@@ -909,18 +918,19 @@ class _ObjectShape:
         """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
         nearly as thick as the bone, which no opening parts from it), or the cut itself when no plateau is the body's.
         Where the cell means are noisier than NOISY_HU (``means_noise_hu``, among the cells at least MATERIAL_DEEP_MM
-        deep) and none is taken, the levels are read again from the means averaged over the object's cells 3 x 3 x 3
-        (``averaged_means``; held-out wide draw 3009: 72 HU, a 20.3 mm bar of 956 HU inserted into a long bone 22.2 mm
-        thick, no level read on either side of the cut; the checks of a plateau still read the cells' own means), and
-        a plateau is then taken only apart from the level of the bone's inside far from the body, which must be
-        read (wide seed 40204: with the cut keeping none of the bone far from the body, a flat bone's 370 HU inside,
-        read so, was taken for the body's)."""
+        deep), a step that takes nothing by them reads the levels again from the means averaged over the object's cells
+        3 x 3 x 3 (``averaged_means``; held-out wide draw 3009: 72 HU, a 20.3 mm bar of 956 HU inserted into a long bone
+        22.2 mm thick, no level read on either side of the cut; the checks of a plateau still read the cells' own
+        means), and a plateau is then taken only apart from the level of the bone's inside far from the body, which
+        must be read (wide seed 40204: with the cut keeping none of the bone far from the body, a flat bone's 370 HU
+        inside, read so, was taken for the body's). At every step, not the first only: wide seed 40278, 51 HU of
+        noise, a 7.3 mm bar of 1,479 HU resting on a flat bone 8.2 mm thick, its 196 HU frame followed first; the bar's
+        cells of 1.5 mm held no 3 x 3 x 3 neighbourhood flat enough for a level, and 2,407 IPC points were the bar's."""
         around = self._around_cut(cut.bone)
-        followed = self._follow_levels(cut, self.mean_hu, around)
-        if followed is cut and means_noise_hu(self.mean_hu, self.filled & (self.depth >= MATERIAL_DEEP_MM)) > NOISY_HU:
-            averaged = averaged_means(self.mean_hu, self.filled)
-            followed = self._follow_levels(cut, averaged, around, apart_from_inside=True)
-        return followed
+        readings = [(self.mean_hu, False)]
+        if means_noise_hu(self.mean_hu, self.filled & (self.depth >= MATERIAL_DEEP_MM)) > NOISY_HU:
+            readings.append((averaged_means(self.mean_hu, self.filled), True))
+        return self._follow_levels(cut, readings, around)
 
     def _around_cut(self, bone):
         """What every reading of the levels takes from the ``bone`` a cut kept (cells), whatever the means it reads:
@@ -940,18 +950,20 @@ class _ObjectShape:
         far_inside = self._inside(far, self._depth_of(far)) if far.any() else far
         return across_cells, to_body, far_inside
 
-    def _follow_levels(self, cut, levels_hu, around, apart_from_inside=False):
-        """``_follow_body_material`` with the levels and plateaus read from ``levels_hu`` ((I, J, K) HU, the cell
-        means or their average) and ``around`` the cut (``_around_cut``); with ``apart_from_inside``, every plateau's
-        level must be apart from the bone's inside level (at every step, not the later ones only), and that level
-        read. The first plateau's level is on the body's side of the cut too (where that side has a level to read); a
-        plateau taken moves the cut, and the next one (a frame's, then its bracket's) is read from there."""
+    def _follow_levels(self, cut, readings, around):
+        """``_follow_body_material`` with the levels and plateaus read, at each step, from the first of ``readings``
+        [((I, J, K) HU: the cell means or their average, apart_from_inside)] that takes a plateau, ``around`` the cut
+        (``_around_cut``); with ``apart_from_inside``, every plateau's level must be apart from the bone's inside level
+        (at every step, not the later ones only), and that level read. The first plateau's level is on the body's side
+        of the cut too (where that side has a level to read); a plateau taken moves the cut, and the next one (a
+        frame's, then its bracket's) is read from there."""
         bone = cut.bone
         across_cells, to_body, far_inside = around
-        across = levels_among(levels_hu, across_cells)
-        inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
-        if apart_from_inside and inside_level is None:
-            return cut
+        read = []  # (levels_hu, apart_from_inside, the levels across the cut, the inside's level)
+        for levels_hu, apart_from_inside in readings:
+            inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
+            if not (apart_from_inside and inside_level is None):
+                read.append((levels_hu, apart_from_inside, levels_among(levels_hu, across_cells), inside_level))
         for step in range(MATERIAL_STEPS):
             if step > 0:
                 to_body = self._distance_to(self.filled & ~bone, MATERIAL_LEVELS_MM)
@@ -959,44 +971,79 @@ class _ObjectShape:
             seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
             near = deep & (to_body <= MATERIAL_LEVELS_MM)  # where the levels are read
             taken = None
-            for level in levels_among(levels_hu, near):
-                if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
-                    continue
-                at_inside = inside_level is not None and abs(level - inside_level) <= BAND_HU
-                if (step > 0 or apart_from_inside) and at_inside:
-                    continue
-                part = plateau_from_nearest(levels_hu, bone, level, seeds, near, to_body, float(self.cell.max()))
-                if self._is_the_bodys(part, bone & ~part, level, far_inside, inside_level):
-                    taken = part
+            for levels_hu, apart_from_inside, across, inside_level in read:
+                taken = self._plateau_taken(
+                    bone, levels_hu, step, (seeds, near, to_body), across, far_inside, inside_level, apart_from_inside
+                )
+                if taken is not None:
                     break
             if taken is None:
                 break
+            part, level = taken
             # With the blur round the plateau (its edge, between its level and what it meets), a cell or two; but
             # what the rest of the bone encloses (a bracket's end inserted into it) stays with the bone: it adds no
             # surface, and taken away it would cost the bone's surface round it.
-            taken = dilate(taken, MATERIAL_BLUR_CELLS, within=bone)
-            taken &= ~_filled(bone & ~taken, self._open_sides, self._padding)
-            if not taken.any():
+            part = dilate(part, MATERIAL_BLUR_CELLS, within=bone)
+            part &= ~_filled(bone & ~part, self._open_sides, self._padding)
+            if not part.any():
                 break
             logger.info(
                 "the body followed into the bone kept by its material of %.0f HU: %.0f mm^3",
                 level,
-                taken.sum() * np.prod(self.cell),
+                part.sum() * np.prod(self.cell),
             )
-            bone = bone & ~taken
+            bone = bone & ~part
         if bone is cut.bone:
             return cut
+        bone = self._without_pieces_split_off(bone, cut.bone & ~bone)
         return _Cut(bone, cut.margin_mm, cut.opening_mm, followed=cut.bone & ~bone)
+
+    def _without_pieces_split_off(self, bone, taken):
+        """The ``bone`` (cells) a following left, without the pieces smaller than MIN_BONE_MM3 that the plateaus
+        ``taken`` (cells) split off its largest: the body's parts of another material, which its plateaus held to the
+        bone (fresh wide seed 49044: a 2,433 HU plate and its 14.6 mm bar followed, their 1,267 HU posts left, 65 IPC
+        points 29-55 mm from the bone), or the blur at a bracket's far end (49030)."""
+        pieces, count = ndimage.label(bone)
+        if count < 2:
+            return bone
+        sizes = np.bincount(pieces.ravel(), minlength=count + 1)
+        sizes[0] = 0
+        small = sizes * np.prod(self.cell) < MIN_BONE_MM3
+        small[sizes.argmax()] = False
+        split_off = np.unique(pieces[dilate(taken) & (pieces > 0)])
+        return bone & ~np.isin(pieces, split_off[small[split_off]])
+
+    def _plateau_taken(self, bone, levels_hu, step, where, across, far_inside, inside_level, apart_from_inside):
+        """(part, level HU) of the first plateau of ``bone`` (cells) at a level read from ``levels_hu`` that is the
+        body's (``_is_the_bodys``), or None; ``where``: (seeds, near: cells, to_body: mm) of this ``step``. After the
+        first step, where no level is read, the levels are read among the near cells' own neighbours: from a plateau
+        of the body taken, a thin bar whose every neighbourhood meets its blur (wide seed 40278: a 7.3 mm bar on cells
+        of 1.5 mm, after its frame). Not at the first: with no level across the cut, 505 HU read so in a flat bone
+        (between its cortex and its inside) took 156 cm^3 of it (wide seed 40185)."""
+        seeds, near, to_body = where
+        levels = levels_among(levels_hu, near)
+        if not levels and step > 0:
+            levels = levels_among(levels_hu, near, neighbours_among_cells=True)
+        for level in levels:
+            if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
+                continue
+            at_inside = inside_level is not None and abs(level - inside_level) <= BAND_HU
+            if (step > 0 or apart_from_inside) and at_inside:
+                continue
+            part = plateau_from_nearest(levels_hu, bone, level, seeds, near, to_body, float(self.cell.max()))
+            if self._is_the_bodys(part, bone & ~part, level, far_inside, inside_level):
+                return part, level
+        return None
 
     def _is_the_bodys(self, part, rest, level, far_inside, inside_level):
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``_plateau_is_solid``: a rim no brighter than its inside, whatever the noise), smaller
-        than the ``rest`` of the bone, which is bone still (a cortex), not the cortex round it (a shell: its cavities
-        more than MATERIAL_CAVITY_SHARE of it, at the level of the bone's inside, ``inside_level`` HU, or None where it
-        was not read), and not the bone's inside: neither most of ``far_inside`` (cells: the inside of the bone far
-        from the body; more than MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than
-        MATERIAL_OPEN_FRACTION of the ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker
-        than the part."""
+        than the ``rest`` of the bone, which is bone still (a cortex, or the dimmer rim the bone had:
+        ``_keeps_the_rim``), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE of it, at
+        the level of the bone's inside, ``inside_level`` HU, or None where it was not read), and not the bone's
+        inside: neither most of ``far_inside`` (cells: the inside of the bone far from the body; more than
+        MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than MATERIAL_OPEN_FRACTION of the
+        ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
         if (part & far_inside).sum() > MATERIAL_FAR_INSIDE_SHARE * far_inside.sum():
@@ -1014,7 +1061,15 @@ class _ObjectShape:
         enclosed = in_rest.sum() > (1.0 - MATERIAL_OPEN_FRACTION) * ring.sum()
         if enclosed and np.median(self.mean_hu[in_rest]) >= level:
             return False
-        return self.verdict(0, rest, self._depth_of(rest)).verdict == "bone"
+        left = self.verdict(0, rest, self._depth_of(rest))
+        if left.verdict == "bone":
+            return True
+        if not _bone_cut_off(left):
+            return False
+        # A rim dimmer than a cortex, but one the bone kept had already (a flat bone whose inside is nearly as bright
+        # as its cortex: fresh wide seed 49030, +96 HU with the 8.6 mm bar of 1,317 HU inserted into it and without).
+        kept = self.verdict(0, part | rest, self._depth_of(part | rest))
+        return _bone_cut_off(kept) and _keeps_the_rim(left, kept.cortex_hu)
 
     def _plateau_is_solid(self, part):
         """``is_solid`` for a plateau ``part`` (cells), its rim contrast less what the noise alone lifts a cell's
@@ -1355,6 +1410,17 @@ def _bone_cut_off(verdict):
     if verdict.verdict == "bone":
         return True
     return verdict.verdict == "bone without a cortex" and (verdict.cortex_hu or 0.0) >= SOLID_CONTRAST_HU
+
+
+def _keeps_the_rim(left, kept_hu):
+    """True when what a following ``left`` of the bone (ObjectVerdict) is bone with a cortex, or a rim dimmer than a
+    cortex but more than a solid part's (``_bone_cut_off``) with KEPT_RIM_SHARE of the rim contrast (HU) of what it
+    was taken from, ``kept_hu``. Wide seed 40131: followed from its spheres, the frame taken left a 13.6 mm bar of 612
+    HU with a little of the bone, +78 HU, where what was followed had a cortex; taken for the bone, 8,939 of 11,216 IPC
+    points were the bar's, exit 0."""
+    if left.verdict == "bone":
+        return True
+    return _bone_cut_off(left) and left.cortex_hu >= KEPT_RIM_SHARE * kept_hu
 
 
 def _may_hold_a_body(shape, seeds):
