@@ -556,6 +556,33 @@ def test_a_flat_bone_whose_inside_a_dim_brackets_hole_opens_is_not_refused_as_a_
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.ipc_on_body <= 5 and score.coverage >= 0.9
 
 
+def test_a_long_bone_whose_marrow_a_wide_dim_brackets_hole_opens_is_plugged_wider():
+    """Fresh wide seed 51017: a 10.9 mm bracket of 157 HU inserted into a long bone (2.2 mm of 1,212 HU cortex round
+    -67 HU marrow) that the field of view cuts along its length. Through the bracket's hole, wider than the 10 mm the
+    plug closes, the marrow was one region with the outside: 6.9 cm^3 of cortex 3 mm thick, too thin for a bone, and
+    the CT was refused with 19 cm^3 of bone in view. Holes up to 16 mm are plugged when the 10 mm plug gives no cortex
+    (``bone_recognition.WIDE_PLUG_MM``). Measured: 6,944 IPC points, all on the bone, 81.9 % of it covered."""
+    volume, truth = make_family_ct(51017, "full", overrides=wide_bracket_overrides(51017))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 6000
+    assert score.coverage >= 0.75
+
+
+def test_a_cut_off_a_solid_part_that_takes_most_of_the_bone_for_the_body_is_no_cut():
+    """Fresh wide seed 51047: a 7.7 mm bar of 1,251 HU resting on a flat bone 8.6 mm thick (2 mm of 1,932 HU cortex),
+    its frame below the threshold and its spheres unpaired, so only the bar's solid part says where the body is. The
+    bone's core is within the bar's reach from an opening of 3.5 mm down, so the cut kept 3.8 of the object's 29.9
+    cm^3, the stub's rule took the rest, and the CT was refused with "the bone has no surface at the threshold; check
+    the threshold", a wrong lead. A cut off solid parts that leaves more bone on their side than it keeps is no cut
+    now; the CT is still refused (nothing parts the bar from the bone), but the message says what the object was taken
+    for."""
+    volume, truth = make_family_ct(51047, "full", overrides=wide_bracket_overrides(51047))
+    with pytest.raises(NoBoneSurface) as refusal:
+        process_ct(volume, tool_markers=tool_marker_geometry(truth.tool_id))
+    assert "no surface at the threshold" not in str(refusal.value)
+    assert re.search(r"reference body \(29\.\d cm\^3", str(refusal.value))
+
+
 @pytest.mark.parametrize("seed, covered", [(12094, 0.95), (40317, 0.8), (40170, 0.7), (40173, 0.75)])
 def test_the_bones_own_cortex_or_inside_is_not_followed_as_the_bodys_material(seed, covered):
     """Bones whose own cortex or inside is a plateau that a first form of the body's following took for the body's

@@ -49,7 +49,7 @@ from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, mean
 from .components import boxes_and_sizes
 from .morphology import block_max, dilate, dilate_by_cube, reaching_no_side, unblock
 from .parallel import in_parallel
-from .plugs import between_sides, closed_holes, inside_pieces
+from .plugs import PLUG_MM, between_sides, closed_holes, inside_pieces
 from .sphere_candidates import block_means
 
 logger = logging.getLogger(__name__)
@@ -63,6 +63,11 @@ MAX_CELLS = 250_000
 #: seed 40193, 60 cm^3 of bone in view) left no opening between the bar's half width and the bone's half thickness,
 #: and the CT was refused; on its voxels (0.7 x 0.7 x 0.9 mm) the bar is cut off (37,117 IPC points, all on the bone).
 FINE_MAX_CELLS = 1_000_000
+#: A hole in an object's walls is plugged up to twice ``plugs.PLUG_MM`` wide, or else twice this (mm), when that gives
+#: it a cortex (``_ObjectShape._plugged``): a 10.9 mm bracket of 157 HU inserted into a long bone cut by the field of
+#: view opened its marrow (fresh wide seed 51017: 6.9 cm^3 of cortex 3 mm thick, refused with 19 cm^3 of bone in
+#: view; plugged so, 6,944 IPC points, all on the bone).
+WIDE_PLUG_MM = 8.0
 #: Smallest bone (mm^3, cavities filled): a 16 mm piece of a thin shaft.
 MIN_BONE_MM3 = 1500.0
 #: A bone is at least twice this thick somewhere (mm).
@@ -339,7 +344,11 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
             verdict, bone = shape.verdict(0), None
             solid = shape.solid_parts() if verdict.verdict.startswith("bone") else []
             if solid:  # a body whose spheres are out of view or sunk into its frame, joined to the bone
-                verdict, bone = shape.cut_off_body(solid)
+                # The solid parts are the body's by their rim alone: a cut that leaves more bone on their side than
+                # it keeps went through the bone (fresh wide seed 51047: a 7.7 mm bar resting on a flat bone 8.6 mm
+                # thick, the bone's core within the bar's reach from 3.5 mm down; 3.8 cm^3 of 29 kept, the rest
+                # taken for the body, and no IPC).
+                verdict, bone = shape.cut_off_body(solid, no_more_bone_on_body=True)
                 if bone is None:
                     verdict, bone = shape.followed_from_seeds(solid, no_bone_on_body=True) or (verdict, bone)
             elif unseen and verdict.verdict.startswith("bone") and shape.filled_mm3 >= 2.0 * MIN_BONE_MM3:
@@ -709,34 +718,36 @@ class _ObjectShape:
 
     def _plugged(self):
         """(filled, depth) of the object with the inside it encloses once the holes in its walls up to twice
-        ``plugs.PLUG_MM`` wide are plugged (``plugs``), when that gives it a cortex; None otherwise. A bracket below
-        the threshold inserted into a bone makes such a hole, and through it the marrow is one region with the
-        outside: a flat bone cut by the CT's box on all sides but one, its inside below the threshold, was two tables
-        of cortex to the fill, its rim no brighter than its inside, and it was refused as a solid frame (family seed
-        40232 with wide brackets: a 116 HU bracket 9.3 mm wide into a 1.1 mm cortex round a 163 HU inside; 115 cm^3
-        of bone in view). Only when a side of the box is off the CT's edge to tell the outside by."""
+        ``plugs.PLUG_MM`` wide are plugged (``plugs``), or up to twice WIDE_PLUG_MM, when that gives it a cortex; None
+        otherwise. A bracket below the threshold inserted into a bone makes such a hole, and through it the marrow is
+        one region with the outside: a flat bone cut by the CT's box on all sides but one, its inside below the
+        threshold, was two tables of cortex to the fill, its rim no brighter than its inside, and it was refused as a
+        solid frame (family seed 40232 with wide brackets: a 116 HU bracket 9.3 mm wide into a 1.1 mm cortex round a
+        163 HU inside; 115 cm^3 of bone in view). Only when a side of the box is off the CT's edge to tell the outside
+        by."""
         if not self._open_sides:
             return None
-        plug = closed_holes(self.mask, self.cell)
-        if not plug.any():
-            return None
-        enclosed = reaching_no_side(~self.mask & ~plug & ~self._padding, self._open_sides) & ~self.filled
         open_sides = set(self._open_sides)
         on_edge = [((axis, 0) not in open_sides, (axis, -1) not in open_sides) for axis in range(3)]
         between = between_sides(self.mask | self._padding, on_edge, None) >= 2
-        inside = inside_pieces(enclosed, between, np.prod(self.cell))
-        if not inside.any():
-            return None
-        plugged = self._with_a_cortex(self.filled | inside)
-        if plugged is None:
-            return None
-        logger.info(
-            "object %d encloses %.1f cm^3 once the holes in its walls are plugged: a cortex round it (+%.0f HU)",
-            self.label,
-            inside.sum() * np.prod(self.cell) / 1000.0,
-            plugged[2],
-        )
-        return plugged[:2]
+        for reach_mm in (PLUG_MM, WIDE_PLUG_MM):
+            plug = closed_holes(self.mask, self.cell, reach_mm)
+            if not plug.any():
+                continue
+            enclosed = reaching_no_side(~self.mask & ~plug & ~self._padding, self._open_sides) & ~self.filled
+            inside = inside_pieces(enclosed, between, np.prod(self.cell))
+            plugged = self._with_a_cortex(self.filled | inside) if inside.any() else None
+            if plugged is not None:
+                logger.info(
+                    "object %d encloses %.1f cm^3 once the holes in its walls up to %.0f mm are plugged: a cortex "
+                    "round it (+%.0f HU)",
+                    self.label,
+                    inside.sum() * np.prod(self.cell) / 1000.0,
+                    2.0 * reach_mm,
+                    plugged[2],
+                )
+                return plugged[:2]
+        return None
 
     def _with_a_cortex(self, filled):
         """(filled, depth, cortex contrast HU) of the object filled so (``filled`` cells), when that gives it a cortex
