@@ -607,7 +607,7 @@ def test_a_thin_bar_under_noise_is_followed_past_the_frame_it_joins():
     to the bar's far end, 51 HU of noise. The opening cut the frame off the bar's end and the frame's plateau was
     followed, but on cells of 1.5 mm no 3 x 3 x 3 neighbourhood of the bar's is flat enough for its level, averaged or
     not: the bar stayed with the bone, 2,407 of 28,054 IPC points on it, exit 0. Its level is now read among its deep
-    cells' own neighbours. Measured: 25,775 points, all on the bone; 97.4 % of the bone covered (97.0 % before)."""
+    cells' own neighbours. Measured: 25,757 points, all on the bone; 97.4 % of the bone covered (97.0 % before)."""
     volume, truth = make_family_ct(40278, "full", overrides=wide_bracket_overrides(40278))
     image, score = run(volume, truth)
     assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
@@ -620,7 +620,7 @@ def test_a_bar_inserted_into_a_bone_with_a_dim_cortex_is_followed_by_its_materia
     frame's plateau the cut kept, and then the bar's, were refused because the bone left was no bone with a cortex
     (150 HU): 1,544 of 33,730 IPC points were the bar's, exit 0. The bone left must now be what a cut may keep
     (``_bone_cut_off``: a rim more than a solid part's brighter) with 0.9 of the rim of the bone it was taken from
-    (``KEPT_RIM_SHARE``). Measured: 1 of 31,928 points on the body (29 mm from the bone, in the blur where the bar
+    (``KEPT_RIM_SHARE``). Measured: 1 of 31,930 points on the body (29 mm from the bone, in the blur where the bar
     meets its frame), 96.6 % of the bone covered (as before)."""
     volume, truth = make_family_ct(49030, "full", overrides=wide_bracket_overrides(49030))
     image, score = run(volume, truth)
