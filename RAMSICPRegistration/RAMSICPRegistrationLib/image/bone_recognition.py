@@ -727,14 +727,18 @@ class _ObjectShape:
         by."""
         if not self._open_sides:
             return None
-        open_sides = set(self._open_sides)
-        on_edge = [((axis, 0) not in open_sides, (axis, -1) not in open_sides) for axis in range(3)]
-        between = between_sides(self.mask | self._padding, on_edge, None) >= 2
+        between = None  # the bone's sides, read once, where a plug first encloses something
         for reach_mm in (PLUG_MM, WIDE_PLUG_MM):
             plug = closed_holes(self.mask, self.cell, reach_mm)
             if not plug.any():
                 continue
             enclosed = reaching_no_side(~self.mask & ~plug & ~self._padding, self._open_sides) & ~self.filled
+            if not enclosed.any():
+                continue
+            if between is None:
+                open_sides = set(self._open_sides)
+                on_edge = [((axis, 0) not in open_sides, (axis, -1) not in open_sides) for axis in range(3)]
+                between = between_sides(self.mask | self._padding, on_edge, None) >= 2
             inside = inside_pieces(enclosed, between, np.prod(self.cell))
             plugged = self._with_a_cortex(self.filled | inside) if inside.any() else None
             if plugged is not None:
@@ -1433,11 +1437,11 @@ def _bone_cut_off(verdict):
 
 
 def _keeps_the_rim(left, kept_hu):
-    """True when what a following ``left`` of the bone (ObjectVerdict) is bone with a cortex, or a rim dimmer than a
-    cortex but more than a solid part's (``_bone_cut_off``) with KEPT_RIM_SHARE of the rim contrast (HU) of what it
-    was taken from, ``kept_hu``. Wide seed 40131: followed from its spheres, the frame taken left a 13.6 mm bar of 612
-    HU with a little of the bone, +78 HU, where what was followed had a cortex; taken for the bone, 8,939 of 11,216 IPC
-    points were the bar's, exit 0."""
+    """True when what a following left of the bone (``left``, an ObjectVerdict) is bone with a cortex, or has a rim
+    dimmer than a cortex but more than a solid part's (``_bone_cut_off``) with KEPT_RIM_SHARE of the rim contrast (HU)
+    of what it was taken from, ``kept_hu``. Wide seed 40131: followed from its spheres, the frame taken left a 13.6 mm
+    bar of 612 HU with a little of the bone, +78 HU, where what was followed had a cortex; taken for the bone, 8,939 of
+    11,216 IPC points were the bar's, exit 0."""
     if left.verdict == "bone":
         return True
     return _bone_cut_off(left) and left.cortex_hu >= KEPT_RIM_SHARE * kept_hu
