@@ -339,6 +339,18 @@ def test_a_wire_or_thin_rod_joined_to_the_bone_leaves_no_ipc_off_it(seed):
     assert score.ipc_on_bone >= 0.999 * score.ipc_points and score.coverage >= 0.96
 
 
+def test_a_wire_off_a_bone_the_opening_takes_whole_leaves_no_ipc_off_it():
+    """Wide seed 40258: a fibula 8 mm thick in air, a 750 HU wire from it to the field of view's edge. On cells of
+    0.86 mm the wire's opening (a cube 6 mm wide) took the fibula whole with the wire, so no line was left to find:
+    770 of 5,126 IPC points lay on the wire, up to 51 mm off the bone (84.4 % on the bone), with exit 0. A narrower
+    opening keeps the fibula and takes the wire: 4,288 of 4,312 on the bone (the other 24, 0.7-2.1 mm off it 10-13 mm
+    from a steel pin, were off it before too), none on the body, 81.9 % of the bone covered (82.4 % before)."""
+    volume, truth = make_family_ct(40258, "full", overrides=wide_bracket_overrides(40258))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0
+    assert score.ipc_on_bone >= 0.99 * score.ipc_points and score.coverage >= 0.8
+
+
 def test_a_frame_solid_through_is_not_taken_for_a_bone_without_a_cortex():
     """Family seed 16078 (full profile): a tibia's end wholly outside the round field of view, the reference body's
     star frame, posts and bracket of 707 HU in it (3 of its spheres cut). No object has a cortex; the frame, 10 mm

@@ -37,6 +37,23 @@ def test_a_wire_through_the_bone_is_found_and_nothing_of_the_bone(spacing):
     assert found[wire & (off_bone >= GRID_MM + spacing.max() + 1.0)].all()
 
 
+@pytest.mark.parametrize("spacing", [(0.86, 0.86, 1.0), (0.5, 0.5, 0.5)])
+def test_a_wire_off_a_bone_thinner_than_the_opening_is_found_and_nothing_of_the_bone(spacing):
+    """A shaft 8 mm wide (family wide seed 40258's fibula in air), too thin to hold the opening's cube of 2 x 2 mm on
+    cells of 0.86 mm (6 mm: it keeps nothing), and a wire 1.6 mm wide leaving it at 45 degrees for 30 mm: the
+    narrower opening (``THIN_RADIUS_MM``) keeps the shaft and takes the wire, from 3 mm off the shaft to its end;
+    no voxel of the shaft is taken."""
+    spacing = np.asarray(spacing)
+    points = _grid(np.ceil(np.array([70.0, 50.0, 50.0]) / spacing).astype(int), spacing)
+    shaft = (np.hypot(points[..., 1] - 10.0, points[..., 2] - 10.0) <= 4.0) & (np.abs(points[..., 0] - 35.0) <= 30.0)
+    start = np.array([35.0, 10.0, 10.0])
+    wire = _to_segment(points, start, start + 30.0 * np.array([0.0, 1.0, 1.0]) / np.sqrt(2.0)) <= 0.8
+    found = wires_on_bone(shaft | wire, spacing)
+    off_bone = np.hypot(points[..., 1] - 10.0, points[..., 2] - 10.0) - 4.0
+    assert not found[shaft].any()
+    assert found[wire & (off_bone >= 3.0)].all()
+
+
 def test_a_fin_of_bone_thinner_than_a_wire_but_wide_is_not_a_wire():
     """A blade of bone 2 mm thick and 30 mm wide along the shaft, 15 mm out: the opening takes it, it sticks out,
     but it is a plate, not a line."""
