@@ -47,7 +47,7 @@ from scipy import ndimage
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, means_noise_hu, plateau_from_nearest
 from .components import boxes_and_sizes
-from .morphology import block_max, dilate, dilate_by_cube, reaching_no_side, unblock
+from .morphology import block_max, dilate, dilate_by_cube, open_by_cube, reaching_no_side, unblock
 from .parallel import in_parallel
 from .plugs import PLUG_MM, between_sides, closed_holes, inside_pieces
 from .sphere_candidates import block_means
@@ -144,6 +144,9 @@ MATERIAL_FAR_MM = 10.0
 MATERIAL_FAR_INSIDE_SHARE = 0.5
 #: A plateau taken takes the cells round it this deep (cells along the grid's axes) too: the blur at its edge.
 MATERIAL_BLUR_CELLS = 2
+#: The pieces a following split off the bone are looked for again with the bone opened by a cube this many cells wide
+#: (odd): a rim of blur a cell or two thick may still join them (``_without_pieces_split_off``).
+SPLIT_OPENING_CELLS = 3
 #: A plateau the bone left surrounds (outside it, less than this fraction of the ring MATERIAL_RING_MM round it) and no
 #: darker than that ring is the bone's inside (its marrow or cancellous bone under the cortex), not the body's. In the
 #: wide CTs 40002, 40197, 40245 and 40248, the brackets' and frames' plateaus had 0.13-0.47 of their ring outside the
@@ -971,7 +974,11 @@ class _ObjectShape:
         (``_around_cut``); with ``apart_from_inside``, every plateau's level must be apart from the bone's inside level
         (at every step, not the later ones only), and that level read. The first plateau's level is on the body's side
         of the cut too (where that side has a level to read); a plateau taken moves the cut, and the next one (a
-        frame's, then its bracket's) is read from there."""
+        frame's, then its bracket's) is read from there. A plateau that leaves no cortex is taken only if the next one
+        leaves bone with a cortex (given back otherwise): a metal bracket inserted into the bone hides its cortex until
+        it is taken too (fresh wide seed 53044: a star frame of 609 HU, 9.3 mm thick, and its 2,303 HU bracket inserted
+        into a fibula in air; the frame left the fibula with the bracket in it, no cortex, and nothing was followed:
+        12,840 of 19,071 IPC points were the frame's and the bracket's, exit 0)."""
         bone = cut.bone
         across_cells, to_body, far_inside = around
         read = []  # (levels_hu, apart_from_inside, the levels across the cut, the inside's level)
@@ -979,6 +986,7 @@ class _ObjectShape:
             inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
             if not (apart_from_inside and inside_level is None):
                 read.append((levels_hu, apart_from_inside, levels_among(levels_hu, across_cells), inside_level))
+        confirmed = bone  # the bone after the last plateau that left bone
         for step in range(MATERIAL_STEPS):
             if step > 0:
                 to_body = self._distance_to(self.filled & ~bone, MATERIAL_LEVELS_MM)
@@ -988,13 +996,21 @@ class _ObjectShape:
             taken = None
             for levels_hu, apart_from_inside, across, inside_level in read:
                 taken = self._plateau_taken(
-                    bone, levels_hu, step, (seeds, near, to_body), across, far_inside, inside_level, apart_from_inside
+                    bone,
+                    levels_hu,
+                    step,
+                    (seeds, near, to_body),
+                    across,
+                    far_inside,
+                    inside_level,
+                    apart_from_inside,
+                    may_await=bone is confirmed and step + 1 < MATERIAL_STEPS,
                 )
                 if taken is not None:
                     break
             if taken is None:
                 break
-            part, level = taken
+            part, level, awaiting = taken
             # With the blur round the plateau (its edge, between its level and what it meets), a cell or two; but
             # what the rest of the bone encloses (a bracket's end inserted into it) stays with the bone: it adds no
             # surface, and taken away it would cost the bone's surface round it.
@@ -1003,11 +1019,17 @@ class _ObjectShape:
             if not part.any():
                 break
             logger.info(
-                "the body followed into the bone kept by its material of %.0f HU: %.0f mm^3",
+                "the body followed into the bone kept by its material of %.0f HU: %.0f mm^3%s",
                 level,
                 part.sum() * np.prod(self.cell),
+                " (if a plateau after it leaves bone with a cortex)" if awaiting else "",
             )
             bone = bone & ~part
+            if not awaiting:
+                confirmed = bone
+        if bone is not confirmed:
+            logger.info("the last plateau followed given back: no plateau after it leaves bone")
+            bone = confirmed
         if bone is cut.bone:
             return cut
         bone = self._without_pieces_split_off(bone, cut.bone & ~bone)
@@ -1021,30 +1043,51 @@ class _ObjectShape:
         under 62 HU of noise (wide seed 40279 drawn as the held-out 3009: pieces 3-14 mm from the bone, 5 IPC points).
         The specks of blur a plateau leaves wholly next to the bone stay (their own surface is none of the IPC's, but
         as the body's they took the bone's surface within ``ct_segmentation.FOLLOWED_MARGIN_MM`` of them: thick bar
-        104, 576 IPC points, 97.7 -> 93.1 % of the bone covered)."""
+        104, 576 IPC points, 97.7 -> 93.1 % of the bone covered). Such a piece may still hang on the bone by the
+        blurred rim a plateau leaves round it (fresh wide seed 53010: a 1,642 HU bar followed under 73 HU of noise, the
+        3.4 mm arm of its 1,009 HU star frame joined to the fibula by the bar's rim, 122 IPC points 30-60 mm off the
+        bone): the pieces are looked for again with the bone opened by a cube SPLIT_OPENING_CELLS wide, where that
+        keeps at least half of it in its largest piece, and go with their rim (up to two cells the opening took)."""
+        far, _ = self._far_small_pieces(bone, taken, 1)
+        bone = bone & ~far
+        opened = open_by_cube(bone, SPLIT_OPENING_CELLS)
+        far, largest = self._far_small_pieces(opened, taken, SPLIT_OPENING_CELLS // 2 + 1)
+        if far.any() and largest.sum() >= 0.5 * bone.sum():
+            bone = bone & ~dilate(far, 2, within=bone & ~opened & ~dilate(largest, 2))
+        return bone
+
+    def _far_small_pieces(self, bone, taken, touching_cells):
+        """(the pieces of ``bone`` (cells) smaller than MIN_BONE_MM3 within ``touching_cells`` of ``taken`` that reach
+        farther than ROD_TO_MM from its largest piece, the largest piece): ``_without_pieces_split_off``."""
+        nothing = np.zeros(bone.shape, dtype=bool)
         pieces, count = ndimage.label(bone)
         if count < 2:
-            return bone
+            return nothing, bone
         sizes = np.bincount(pieces.ravel(), minlength=count + 1)
         sizes[0] = 0
         largest = sizes.argmax()
         small = sizes * np.prod(self.cell) < MIN_BONE_MM3
         small[largest] = False
-        split_off = np.unique(pieces[dilate(taken) & (pieces > 0)])
+        split_off = np.unique(pieces[dilate(taken, touching_cells) & (pieces > 0)])
         split_off = split_off[small[split_off]]
         if not split_off.size:
-            return bone
+            return nothing, pieces == largest
         beyond = np.unique(pieces[(self._distance_to(pieces == largest, ROD_TO_MM) > ROD_TO_MM) & (pieces > 0)])
-        return bone & ~np.isin(pieces, np.intersect1d(split_off, beyond))
+        return np.isin(pieces, np.intersect1d(split_off, beyond)), pieces == largest
 
-    def _plateau_taken(self, bone, levels_hu, step, where, across, far_inside, inside_level, apart_from_inside):
-        """(part, level HU) of the first plateau of ``bone`` (cells) at a level read from ``levels_hu`` that is the
-        body's (``_is_the_bodys``), or None; ``where``: (seeds, near: cells, to_body: mm) of this ``step``. After the
-        first step, where no level is read, the levels are read among the near cells' own neighbours: from a plateau
-        of the body taken, a thin bar whose every neighbourhood meets its blur (wide seed 40278: a 7.3 mm bar on cells
-        of 1.5 mm, after its frame). Not at the first: with no level across the cut, 505 HU read so in a flat bone
-        (between its cortex and its inside) took 156 cm^3 of it (wide seed 40185)."""
+    def _plateau_taken(
+        self, bone, levels_hu, step, where, across, far_inside, inside_level, apart_from_inside, may_await=False
+    ):
+        """(part, level HU, awaiting) of the first plateau of ``bone`` (cells) at a level read from ``levels_hu`` that
+        is the body's (``_is_the_bodys``) and leaves bone (``_leaves_bone``), or None; ``where``: (seeds, near: cells,
+        to_body: mm) of this ``step``. With ``may_await``, and none leaving bone, the first that leaves an object as
+        thick as bone with no cortex (``awaiting`` True): the next plateau may be what hides its cortex
+        (``_follow_levels``). After the first step, where no level is read, the levels are read among the near cells'
+        own neighbours: from a plateau of the body taken, a thin bar whose every neighbourhood meets its blur (wide seed
+        40278: a 7.3 mm bar on cells of 1.5 mm, after its frame). Not at the first: with no level across the cut, 505 HU
+        read so in a flat bone (between its cortex and its inside) took 156 cm^3 of it (wide seed 40185)."""
         seeds, near, to_body = where
+        awaiting = None
         levels = levels_among(levels_hu, near)
         if not levels and step > 0:
             levels = levels_among(levels_hu, near, neighbours_among_cells=True)
@@ -1055,19 +1098,25 @@ class _ObjectShape:
             if (step > 0 or apart_from_inside) and at_inside:
                 continue
             part = plateau_from_nearest(levels_hu, bone, level, seeds, near, to_body, float(self.cell.max()))
-            if self._is_the_bodys(part, bone & ~part, level, far_inside, inside_level):
-                return part, level
-        return None
+            rest = bone & ~part
+            if not self._is_the_bodys(part, rest, level, far_inside, inside_level):
+                continue
+            leaves_bone, left = self._leaves_bone(part, rest)
+            if leaves_bone:
+                return part, level, False
+            if may_await and awaiting is None and left.verdict == "bone without a cortex":
+                awaiting = (part, level, True)
+        return awaiting
 
     def _is_the_bodys(self, part, rest, level, far_inside, inside_level):
         """True when a plateau ``part`` (cells, at ``level`` HU) of the bone a cut kept is the body's: at least
         MIN_CORE_MM3, solid (``_plateau_is_solid``: a rim no brighter than its inside, whatever the noise), smaller
-        than the ``rest`` of the bone, which is bone still (a cortex, or the dimmer rim the bone had:
-        ``_keeps_the_rim``), not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE of it, at
-        the level of the bone's inside, ``inside_level`` HU, or None where it was not read), and not the bone's
-        inside: neither most of ``far_inside`` (cells: the inside of the bone far from the body; more than
+        than the ``rest`` of the bone, not the cortex round it (a shell: its cavities more than MATERIAL_CAVITY_SHARE
+        of it, at the level of the bone's inside, ``inside_level`` HU, or None where it was not read), and not the
+        bone's inside: neither most of ``far_inside`` (cells: the inside of the bone far from the body; more than
         MATERIAL_FAR_INSIDE_SHARE of them) nor a plateau the rest surrounds (less than MATERIAL_OPEN_FRACTION of the
-        ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part."""
+        ring MATERIAL_RING_MM round the part outside the rest) with a ring no darker than the part. Whether the rest
+        is bone still is ``_leaves_bone``'s to say."""
         if part.sum() * np.prod(self.cell) < MIN_CORE_MM3 or part.sum() >= rest.sum():
             return False
         if (part & far_inside).sum() > MATERIAL_FAR_INSIDE_SHARE * far_inside.sum():
@@ -1083,17 +1132,20 @@ class _ObjectShape:
         ring = self._within(part, MATERIAL_RING_MM) & ~part
         in_rest = ring & rest
         enclosed = in_rest.sum() > (1.0 - MATERIAL_OPEN_FRACTION) * ring.sum()
-        if enclosed and np.median(self.mean_hu[in_rest]) >= level:
-            return False
+        return not (enclosed and np.median(self.mean_hu[in_rest]) >= level)
+
+    def _leaves_bone(self, part, rest):
+        """(whether the ``rest`` a plateau ``part`` (cells) of the body leaves is bone still: a cortex, or the dimmer
+        rim the bone had, ``_keeps_the_rim``; the rest's ObjectVerdict)."""
         left = self.verdict(0, rest, self._depth_of(rest))
         if left.verdict == "bone":
-            return True
+            return True, left
         if not _bone_cut_off(left):
-            return False
+            return False, left
         # A rim dimmer than a cortex, but one the bone kept had already (a flat bone whose inside is nearly as bright
         # as its cortex: fresh wide seed 49030, +96 HU with the 8.6 mm bar of 1,317 HU inserted into it and without).
         kept = self.verdict(0, part | rest, self._depth_of(part | rest))
-        return _bone_cut_off(kept) and _keeps_the_rim(left, kept.cortex_hu)
+        return _bone_cut_off(kept) and _keeps_the_rim(left, kept.cortex_hu), left
 
     def _plateau_is_solid(self, part):
         """``is_solid`` for a plateau ``part`` (cells), its rim contrast less what the noise alone lifts a cell's

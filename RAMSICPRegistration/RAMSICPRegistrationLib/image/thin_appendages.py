@@ -14,8 +14,10 @@ body out of view or below the threshold).
 
 Where the bone is thin, the opening takes it with the wire (family wide seed 40258: a fibula 8 mm thick in air, 770
 IPC points on a 750 HU wire from it to the field of view's edge): a narrower opening (``THIN_RADIUS_MM``) is tried as
-well, and where only what sticks out past ``PROTRUDES_MM`` is a line, its foot among the bone's slivers, the line is
-taken with its tube back to the bone if it leaves the bone (``LEAVES``).
+well, and where only what sticks out past ``PROTRUDES_MM`` is a line, its foot among the bone's slivers, that line is
+taken if it leaves the bone (``LEAVES``); its foot stays, and the IPC points round it go with the base of what was
+cut off (``ct_segmentation.CUT_BASE_MM``). Taken back to the bone along its axis, it took the fibula's slivers there
+too (drawn seed 19027: a 6 mm bracket of 271 HU resting on a fibula in air, 95.7 -> 94.8 % of the bone covered).
 """
 
 import logging
@@ -113,23 +115,8 @@ def _wires_opened_by(coarse, own_cells, cell, size):
             if line is where:
                 wire[box] |= part
             elif np.ptp(out) >= LEAVES * np.ptp((line - line.mean(axis=0)) @ _principal_axis(line)):
-                wire[tuple(np.round(_tube_back_to_the_bone(line, where, cell) / cell).astype(int).T)] = True
+                wire[tuple(np.round(line / cell).astype(int).T)] = True
     return wire, kept_cells
-
-
-def _tube_back_to_the_bone(line, part, cell):
-    """(M, 3) the cells (mm) of ``part`` (N, 3) within a line's tube: within the widest of the line's cells ``line``
-    (L, 3) mm of its axis, plus a cell, and along it from PROTRUDES_MM and two cells before its ends to as far
-    after them (its foot, which the opening's reach left among the bone's slivers)."""
-    centre = line.mean(axis=0)
-    axis = _principal_axis(line)
-    along, along_part = (line - centre) @ axis, (part - centre) @ axis
-    across = np.linalg.norm(line - centre - along[:, None] * axis, axis=1)
-    across_part = np.linalg.norm(part - centre - along_part[:, None] * axis, axis=1)
-    beyond_ends = PROTRUDES_MM + 2.0 * cell.max()
-    inside = across_part <= across.max() + cell.max()
-    inside &= (along_part >= along.min() - beyond_ends) & (along_part <= along.max() + beyond_ends)
-    return part[inside]
 
 
 def _principal_axis(where):
