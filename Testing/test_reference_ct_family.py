@@ -694,6 +694,17 @@ def test_a_frame_arm_held_to_the_bone_by_a_followed_bar_s_blurred_rim_goes_with_
     assert score.coverage >= 0.27
 
 
+def test_a_bone_s_far_side_a_followed_bracket_splits_off_stays_the_bone_s():
+    """Wide seed 40260: a 463 HU round bracket 8.5 mm across inserted through a fibula 10 mm thick, followed by its
+    material. With the bone opened by 3 cells to find the body's pieces the following split off (53010's arm), the
+    fibula's far side past the bracket (1.2 cm^3, a +992 HU cortex) went with them in a first form: 95.0 -> 82.8 % of
+    the bone covered. A piece with a cortex stays the bone's: 7,960 IPC points, all on the bone, 95.0 % covered."""
+    volume, truth = make_family_ct(40260, "full", overrides=wide_bracket_overrides(40260))
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+    assert score.coverage >= 0.94
+
+
 def test_a_bar_the_bone_kept_is_not_followed_into_a_rim_that_was_no_bones():
     """Wide seed 40131: a 13.6 mm bar of 612 HU resting on a long bone (941 HU cortex 3.7 mm thick round a 56 HU
     inside) of which 2.9 cm^3 is in view, its 1,001 HU ring frame and 335 HU spheres and posts, 37 HU of noise.

@@ -91,9 +91,8 @@ def _wires_opened_by(coarse, own_cells, cell, size):
         return wire, kept_cells
     # Candidates stick out that far in the city-block metric (short of it along the diagonals); then measured.
     beyond = taken & ~dilate(kept, iterations=int(np.ceil(PROTRUDES_MM / cell.min())))
-    pieces, _ = ndimage.label(beyond, structure=np.ones((3, 3, 3), dtype=bool))
     boxes = ndimage.find_objects(labels)
-    surface = None
+    pieces = surface = None
     for label in np.unique(labels[beyond]):
         if not label:
             continue
@@ -103,6 +102,8 @@ def _wires_opened_by(coarse, own_cells, cell, size):
         where = (np.argwhere(part) + corner) * cell
         lines = [where] if _line_like(where, cell) else None  # the whole part taken is a line ...
         if lines is None:  # ... or what sticks out of it is, its foot among the bone's slivers (each piece in one part)
+            if pieces is None:
+                pieces, _ = ndimage.label(beyond, structure=np.ones((3, 3, 3), dtype=bool))
             in_box = pieces[box]
             lines = [(np.argwhere(in_box == piece) + corner) * cell for piece in np.unique(in_box[part]) if piece]
             lines = [line for line in lines if _line_like(line, cell)]
