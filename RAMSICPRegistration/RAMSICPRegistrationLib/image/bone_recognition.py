@@ -1059,7 +1059,8 @@ class _ObjectShape:
         pieces, count = ndimage.label(far)
         for piece in range(1, count + 1):
             cells = pieces == piece
-            if (self.verdict(0, cells, self._depth_of(cells)).cortex_hu or 0.0) >= CORTEX_CONTRAST_HU:
+            contrast = self._cortex(cells, self._depth_of(cells))
+            if contrast is not None and contrast >= CORTEX_CONTRAST_HU:
                 far &= ~cells  # a piece of the bone the plateau split (wide seed 40260: a fibula's far side, +992 HU)
         return bone & ~dilate(far, 2, within=bone & ~opened & ~dilate(largest, 2))
 
