@@ -183,7 +183,13 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     # The status rules on a sphere well inside a CT of air: seen over 80 % (a thick post hides the rest) it is clean
     # when its edge fits within CLEAN_FIT_MM, partial when it fits worse (a post's blur moved it); seen all round,
     # it is partial when a fifth of its rays find air inside its radius (a cap missing).
-    from RAMSICPRegistrationLib.image.marker_spheres import CLEAN_FIT_MM, HIDDEN_FIT_MM, HIDDEN_RADIUS_MM, _status
+    from RAMSICPRegistrationLib.image.marker_spheres import (
+        CLEAN_FIT_MM,
+        HIDDEN_FIT_MM,
+        HIDDEN_RADIUS_MM,
+        ROUGH_FIT_MM,
+        _status,
+    )
 
     volume = analytic_volume([], size_mm=(40.0, 40.0, 40.0), background_hu=-1000.0, noise_hu=0.0)
     centre = volume.ijk_to_ras_points((np.array(volume.voxels.shape) - 1)[None] / 2.0)[0]
@@ -214,8 +220,14 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     # pushed its edges out (wide family seed 40088: 0.27 mm off). Seen nearly whole, a larger ball stays clean.
     status, note = _status(volume, centre, 5.75, 5.85, 0.15, 0.86, 0.0)
     assert status == "partial" and "radius 5.85 mm (nominal 5.75 mm) where 14 % of it is hidden" in note
-    assert _status(volume, centre, 5.75, 5.85, 0.15, 0.95, 0.0)[0] == "ok"
     assert _status(volume, centre, 5.75, 5.65, 0.15, 0.86, 0.0)[0] == "ok"
+    # Seen nearly whole, a larger ball stays clean when its edge fits it within ROUGH_FIT_MM (a tool's larger balls);
+    # with a rougher edge, something pushes it out (fresh wide seed 58026 at 62 HU of noise: plastic spheres on metal
+    # posts, radius +0.04 and +0.06 mm, RMS 0.15 and 0.14 mm, seen over 92.5 %, 0.37 and 0.29 mm off).
+    assert _status(volume, centre, 5.75, 5.85, 0.9 * ROUGH_FIT_MM, 0.95, 0.0)[0] == "ok"
+    status, note = _status(volume, centre, 5.75, 5.79, 0.15, 0.925, 0.0)
+    assert status == "partial" and "radius 5.79 mm (nominal 5.75 mm) and its surface 0.15 mm RMS off" in note
+    assert _status(volume, centre, 5.75, 5.7, 1.3 * ROUGH_FIT_MM, 1.0, 0.0)[0] == "ok"  # short of the nominal
 
 
 def test_clean_spheres_are_paired_first_and_the_posts_feet_do_not_take_markers():
