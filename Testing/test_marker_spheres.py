@@ -228,6 +228,7 @@ def test_a_sphere_partly_hidden_is_clean_only_when_its_edge_fits_and_one_with_ai
     status, note = _status(volume, centre, 5.75, 5.79, 0.15, 0.925, 0.0)
     assert status == "partial" and "radius 5.79 mm (nominal 5.75 mm) and its surface 0.15 mm RMS off" in note
     assert _status(volume, centre, 5.75, 5.7, 1.3 * ROUGH_FIT_MM, 1.0, 0.0)[0] == "ok"  # short of the nominal
+    assert _status(volume, centre, 5.75, 5.751, 0.136, 0.9, 0.0)[0] == "ok"  # at it, within the fit's noise (58043)
 
 
 def test_clean_spheres_are_paired_first_and_the_posts_feet_do_not_take_markers():
