@@ -593,9 +593,9 @@ def _labels_at(volume, segmentation, points):
 class _LevelReading(NamedTuple):
     """One reading of the levels (``_ObjectShape._follow_levels``): ``levels_hu`` (I, J, K) HU, the cells' block means
     or their average over each cell's 3 x 3 x 3 neighbours (``averaged``: then a plateau's level must be apart from
-    ``inside_level``, the bone's inside far from the body, HU); ``deep``: the average over the deep cells alone, its
-    levels read among the near cells' own neighbours (a thin rod, ``_ObjectShape._follow_body_material``);
-    ``across``: the levels (HU) on the body's side of the cut."""
+    ``inside_level``, the level of the bone's inside far from the body, HU, or None where none is far from it);
+    ``deep``: the average over the deep cells alone, its levels read among the near cells' own neighbours (a thin rod,
+    ``_ObjectShape._follow_body_material``); ``across``: the levels (HU) on the body's side of the cut."""
 
     levels_hu: np.ndarray
     averaged: bool

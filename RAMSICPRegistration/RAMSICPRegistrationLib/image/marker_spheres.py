@@ -85,7 +85,8 @@ HIDDEN_RADIUS_MM = 0.12
 #: ball's half-max edge lies inside its surface, never outside: of the 1,120 clean spheres paired in 400 family CTs
 #: (12000-13099, and 40000-40199 with wide brackets), 1,119 were fitted 0.009-0.20 mm short of the nominal radius.
 #: The one longer (wide seed 40088: a 517 HU sphere sunk into a 104 HU star, seen over 86 %, radius +0.10 mm, RMS
-#: 0.16 mm) was 0.27 mm off. A sphere seen nearly whole keeps its status: a ball larger than the tool's says so.
+#: 0.16 mm) was 0.27 mm off. A sphere seen nearly whole keeps its status (a ball larger than the tool's says so),
+#: unless its edge is rough too (ROUGH_FIT_MM, below).
 SWOLLEN_COVERAGE = 0.9
 SWOLLEN_MM = 0.05
 #: A sphere fitted larger than the nominal by more than ROUGH_SWOLLEN_MM with an RMS over ROUGH_FIT_MM is partial,
@@ -94,7 +95,7 @@ SWOLLEN_MM = 0.05
 #: 131 HU plastic spheres on 7.8 mm posts of 2,851 HU, two of them seen over 92.5 %, radius +0.04 and +0.06 mm, RMS
 #: 0.15 and 0.14 mm, were given usable 0.37 and 0.29 mm off. Of the other 238 usable spheres of 90 wide CTs at 62 HU
 #: (57000-57029, 58000-58059), one was fitted at the nominal (+0.001 mm, RMS 0.14 mm, 0.07 mm off: 58043), the rest
-#: 0.02-0.13 mm short of it; none of the 1,229 usable spheres of the table's 500 CTs was fitted longer than it.
+#: 0.02-0.13 mm short of it; none of the 1,337 usable spheres of the table's 500 CTs was fitted longer than it.
 ROUGH_SWOLLEN_MM = 0.02
 ROUGH_FIT_MM = 0.10
 #: A sphere whose rays find its usual surroundings (air) within its radius, not a post or frame, on more than this
