@@ -28,10 +28,6 @@ BAND_HU = 80.0
 #: Block means noisier than this (HU, ``means_noise_hu``) are read for levels from their average: a flat neighbourhood
 #: (27 cells spanning at most BAND_HU) needs a noise of about a quarter of the band or less.
 NOISY_HU = BAND_HU / 5
-#: ... and noisier than this, they give no flat neighbourhood even among a thin rod's own deep cells (the range of the
-#: 9 or so of them is about 3 standard deviations, over BAND_HU from about 27 HU): they are read from their average
-#: over the deep cells alone too (``bone_recognition._ObjectShape._follow_body_material``).
-DEEP_NOISY_HU = 2 * NOISY_HU
 #: The median absolute difference of two independent Gaussian samples, in their standard deviations (sqrt(2) x
 #: 0.6745).
 _MEDIAN_DIFFERENCE_SIGMAS = 0.954

@@ -40,21 +40,12 @@ Shapes are measured on a grid of about ``CELL_MM`` (block means of the denoised 
 import logging
 from dataclasses import dataclass
 from functools import partial
-from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
 
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .body_material import (
-    BAND_HU,
-    DEEP_NOISY_HU,
-    NOISY_HU,
-    averaged_means,
-    levels_among,
-    means_noise_hu,
-    plateau_from_nearest,
-)
+from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, means_noise_hu, plateau_from_nearest
 from .components import boxes_and_sizes
 from .morphology import block_max, dilate, dilate_by_cube, open_by_cube, reaching_no_side, unblock
 from .parallel import in_parallel
@@ -590,20 +581,6 @@ def _labels_at(volume, segmentation, points):
     return labels
 
 
-class _LevelReading(NamedTuple):
-    """One reading of the levels (``_ObjectShape._follow_levels``): ``levels_hu`` (I, J, K) HU, the cells' block means
-    or their average over each cell's 3 x 3 x 3 neighbours (``averaged``: then a plateau's level must be apart from
-    ``inside_level``, the level of the bone's inside far from the body, HU, or None where none is far from it);
-    ``deep``: the average over the deep cells alone, its levels read among the near cells' own neighbours (a thin rod,
-    ``_ObjectShape._follow_body_material``); ``across``: the levels (HU) on the body's side of the cut."""
-
-    levels_hu: np.ndarray
-    averaged: bool
-    deep: bool
-    across: tuple
-    inside_level: float
-
-
 @dataclass(frozen=True)
 class _Cut:
     """The bone's part of an object that also holds the body: ``bone`` cells on the object's grid, the margin (mm)
@@ -966,25 +943,11 @@ class _ObjectShape:
         must be read (wide seed 40204: with the cut keeping none of the bone far from the body, a flat bone's 370 HU
         inside, read so, was taken for the body's). At every step, not the first only: wide seed 40278, 51 HU of
         noise, a 7.3 mm bar of 1,479 HU resting on a flat bone 8.2 mm thick, its 196 HU frame followed first; the bar's
-        cells of 1.5 mm held no 3 x 3 x 3 neighbourhood flat enough for a level, and 2,407 IPC points were the bar's.
-
-        Where they are noisier than DEEP_NOISY_HU, a rod only a few cells across is read last from the means averaged
-        over the deep cells alone, its levels among the near cells' own neighbours (``_LevelReading.deep``): averaged
-        over all cells, its deep ones mix in its blurred rim, and their own means are too noisy for a flat
-        neighbourhood (fresh wide seed 57018 at 62 HU of noise: a 7.2 mm rod of 871 HU inserted into an ilium 8 mm
-        thick, its cells' means 55 HU noisy; no level was read, no opening parts rod and ilium, and 3,119 of 49,149
-        IPC points were the rod's; 57010: a 9 mm rod of 875 HU resting on a fibula, 2,241 of 7,042). Not where the
-        means are less noisy: the steps between materials lift the measure to 18-23 HU in CTs of 2-6 HU of noise, and
-        a rod's deep cells averaged so read levels between it and the cortex it is inserted into (family seed 35054:
-        a 7.9 mm rod of 1,033 HU in a 1,115 HU cortex, 0.6 cm^3 of the bone taken with it, 96.1 -> 95.0 % covered)."""
+        cells of 1.5 mm held no 3 x 3 x 3 neighbourhood flat enough for a level, and 2,407 IPC points were the bar's."""
         around = self._around_cut(cut.bone)
         readings = [(self.mean_hu, False)]
-        deep = self.filled & (self.depth >= MATERIAL_DEEP_MM)
-        noise_hu = means_noise_hu(self.mean_hu, deep)
-        if noise_hu > NOISY_HU:
-            readings.append((averaged_means(self.mean_hu, self.filled), False))
-        if noise_hu > DEEP_NOISY_HU:
-            readings.append((averaged_means(self.mean_hu, deep), True))
+        if means_noise_hu(self.mean_hu, self.filled & (self.depth >= MATERIAL_DEEP_MM)) > NOISY_HU:
+            readings.append((averaged_means(self.mean_hu, self.filled), True))
         return self._follow_levels(cut, readings, around)
 
     def _around_cut(self, bone):
@@ -1007,13 +970,9 @@ class _ObjectShape:
 
     def _follow_levels(self, cut, readings, around):
         """``_follow_body_material`` with the levels and plateaus read, at each step, from the first of ``readings``
-        [((I, J, K) HU: the cell means, or their average over all cells or over the deep ones, deep)] that takes a
-        plateau, ``around`` the cut (``_around_cut``); with an average, every plateau's level must be apart from the
-        bone's inside level (at every step, not the later ones only), and that level read (``_LevelReading``). Once a
-        plateau was read from the deep cells' average, the later ones are its material going on, whatever reading takes
-        them: the average over all cells of a bone whose bracket was taken reads levels between its cortex and its
-        inside round the hole (fresh wide seed 58054 at 62 HU: a 1,283 HU bracket taken from a flat bone, then a 694 HU
-        plateau of 7.6 cm^3 of the bone, 97.4 -> 88.5 % of it covered). The first plateau's level is on the body's side
+        [((I, J, K) HU: the cell means or their average, apart_from_inside)] that takes a plateau, ``around`` the cut
+        (``_around_cut``); with ``apart_from_inside``, every plateau's level must be apart from the bone's inside level
+        (at every step, not the later ones only), and that level read. The first plateau's level is on the body's side
         of the cut too (where that side has a level to read); a plateau taken moves the cut, and the next one (a
         frame's, then its bracket's) is read from there. A plateau that leaves no cortex is taken only if the next one
         leaves bone with a cortex (given back otherwise): a metal bracket inserted into the bone hides its cortex until
@@ -1022,15 +981,12 @@ class _ObjectShape:
         12,840 of 19,071 IPC points were the frame's and the bracket's, exit 0)."""
         bone = cut.bone
         across_cells, to_body, far_inside = around
-        read = []
-        for index, (levels_hu, deep) in enumerate(readings):
-            averaged = index > 0
+        read = []  # (levels_hu, apart_from_inside, the levels across the cut, the inside's level)
+        for levels_hu, apart_from_inside in readings:
             inside_level = float(np.median(levels_hu[far_inside])) if far_inside.any() else None
-            if not (averaged and inside_level is None):
-                across = levels_among(levels_hu, across_cells, neighbours_among_cells=deep)
-                read.append(_LevelReading(levels_hu, averaged, deep, tuple(across), inside_level))
+            if not (apart_from_inside and inside_level is None):
+                read.append((levels_hu, apart_from_inside, levels_among(levels_hu, across_cells), inside_level))
         confirmed = bone  # the bone after the last plateau that left bone
-        followed_levels, same_material = [], False
         for step in range(MATERIAL_STEPS):
             if step > 0:
                 to_body = self._distance_to(self.filled & ~bone, MATERIAL_LEVELS_MM)
@@ -1038,23 +994,23 @@ class _ObjectShape:
             seeds = deep & (to_body <= MATERIAL_TOUCH_MM)
             near = deep & (to_body <= MATERIAL_LEVELS_MM)  # where the levels are read
             taken = None
-            for reading in read:
+            for levels_hu, apart_from_inside, across, inside_level in read:
                 taken = self._plateau_taken(
                     bone,
-                    reading,
+                    levels_hu,
                     step,
                     (seeds, near, to_body),
+                    across,
                     far_inside,
+                    inside_level,
+                    apart_from_inside,
                     may_await=bone is confirmed and step + 1 < MATERIAL_STEPS,
-                    only_levels=followed_levels if step > 0 and (reading.deep or same_material) else None,
                 )
                 if taken is not None:
                     break
             if taken is None:
                 break
             part, level, awaiting = taken
-            followed_levels.append(level)
-            same_material |= reading.deep
             # With the blur round the plateau (its edge, between its level and what it meets), a cell or two; but
             # what the rest of the bone encloses (a bracket's end inserted into it) stays with the bone: it adds no
             # surface, and taken away it would cost the bone's surface round it.
@@ -1127,29 +1083,27 @@ class _ObjectShape:
         beyond = np.unique(pieces[(self._distance_to(pieces == largest, ROD_TO_MM) > ROD_TO_MM) & (pieces > 0)])
         return np.isin(pieces, np.intersect1d(split_off, beyond)), pieces == largest
 
-    def _plateau_taken(self, bone, reading, step, where, far_inside, may_await=False, only_levels=None):
-        """(part, level HU, awaiting) of the first plateau of ``bone`` (cells) at a level the ``reading``
-        (``_LevelReading``) reads that is the body's (``_is_the_bodys``) and leaves bone (``_leaves_bone``), or None;
-        ``where``: (seeds, near: cells, to_body: mm) of this ``step``; ``only_levels``: None, or the levels (HU) a
-        plateau's must be within BAND_HU of. With ``may_await``, and none leaving bone, the first that leaves an object
-        as thick as bone with no cortex (``awaiting`` True): the next plateau may be what hides its cortex
+    def _plateau_taken(
+        self, bone, levels_hu, step, where, across, far_inside, inside_level, apart_from_inside, may_await=False
+    ):
+        """(part, level HU, awaiting) of the first plateau of ``bone`` (cells) at a level read from ``levels_hu`` that
+        is the body's (``_is_the_bodys``) and leaves bone (``_leaves_bone``), or None; ``where``: (seeds, near: cells,
+        to_body: mm) of this ``step``. With ``may_await``, and none leaving bone, the first that leaves an object as
+        thick as bone with no cortex (``awaiting`` True): the next plateau may be what hides its cortex
         (``_follow_levels``). After the first step, where no level is read, the levels are read among the near cells'
         own neighbours: from a plateau of the body taken, a thin bar whose every neighbourhood meets its blur (wide seed
         40278: a 7.3 mm bar on cells of 1.5 mm, after its frame). Not at the first: with no level across the cut, 505 HU
         read so in a flat bone (between its cortex and its inside) took 156 cm^3 of it (wide seed 40185)."""
         seeds, near, to_body = where
-        levels_hu, inside_level = reading.levels_hu, reading.inside_level
         awaiting = None
-        levels = levels_among(levels_hu, near, neighbours_among_cells=reading.deep)
+        levels = levels_among(levels_hu, near)
         if not levels and step > 0:
             levels = levels_among(levels_hu, near, neighbours_among_cells=True)
         for level in levels:
-            if step == 0 and reading.across and all(abs(level - other) > BAND_HU for other in reading.across):
-                continue
-            if only_levels is not None and all(abs(level - other) > BAND_HU for other in only_levels):
+            if step == 0 and across and all(abs(level - other) > BAND_HU for other in across):
                 continue
             at_inside = inside_level is not None and abs(level - inside_level) <= BAND_HU
-            if (step > 0 or reading.averaged) and at_inside:
+            if (step > 0 or apart_from_inside) and at_inside:
                 continue
             part = plateau_from_nearest(levels_hu, bone, level, seeds, near, to_body, float(self.cell.max()))
             rest = bone & ~part
