@@ -1225,3 +1225,50 @@ def test_a_bracket_through_the_bone_is_followed_to_its_tip_out_of_the_far_side()
     _, score = run(volume, truth)
     assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
     assert score.coverage >= 0.80  # 82.5 % measured, as before
+
+
+def test_an_ipc_left_only_on_a_bar_the_bone_is_joined_to_is_refused():
+    """Fresh wide seed 61018 at 62 HU of noise: a 16.4 mm square bar of 1,000 HU inserted into a long bone's end
+    (9.3 cm^3 of it in view, a steel pin in it), two spheres cut by the field of view and two that cannot be numbered,
+    so no seed holds the body and no cut parts it: one object, with a cortex (rim +670 HU on its inside). The pin's
+    metal zone, the inner walls and the field of view's edge leave out the bone's own surface; what was left was the
+    bar's: 11,467 of 11,469 IPC points on it, with exit 0. The cortex read under the IPC itself is the bar's (none):
+    the CT is refused, and says why."""
+    overrides = {**wide_bracket_overrides(61018), "noise_hu": 62.0}
+    volume, truth = make_family_ct(61018, "full", overrides=overrides)
+    image, score = run(volume, truth)
+    assert image is None and score.ipc_on_body == 0
+    assert "has a cortex, but the surface left of it for the IPC" in score.refused
+    rim = float(re.search(r"its rim is ([-+]\d+) HU on what lies", score.refused).group(1))
+    assert rim < 0.0  # a solid bar's rim is its blurred edge
+
+
+def test_a_long_bone_whose_cortex_is_as_thick_as_a_real_shafts_keeps_its_ipc():
+    """A long bone 15 mm in radius whose cortex is 6.75 mm thick (a tibia's or femur's shaft; the family draws 1-4 mm),
+    with a 1,915 HU bracket resting on it (family seed 2 with those overrides): the cortex read under the IPC is that
+    of a bone, far above a solid part's, and the IPC is the bone's."""
+    from RAMSICPRegistrationLib.image.ipc_self_check import UNDER_SAMPLES, cortex_under
+
+    overrides = {"bone": "long", "bone_radius_mm": 15.0, "cortex_mm": 6.75, "end_in_view": False}
+    volume, truth = make_family_ct(2, "full", overrides=overrides)
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone >= 0.99 * score.ipc_points
+    segmentation, points = image.segmentation, image.surface.points
+    points = points[:: max(1, len(points) // UNDER_SAMPLES)]
+    vertices = volume.ras_to_ijk_points(points) - segmentation.origin
+    assert np.median(cortex_under(segmentation.smoothed, vertices, volume.spacing)) > 300.0
+
+
+def test_a_bar_held_by_a_plastic_plate_larger_than_the_soft_tissue_size_is_linked_to_its_spheres():
+    """Fresh wide seed 61019 at 62 HU of noise: an 8.7 mm square bar of 1,485 HU (as bright as the cortex, 1,573 HU)
+    resting on a flat bone 9.6 mm thick in air, held by a plastic plate of 119 HU (below the 200 HU threshold) that
+    also holds the four spheres. The plate, 177 cm^3, was larger than the dim region the spheres' dim parts could be
+    (150 cm^3, set for soft tissue), so the bar was not linked to them and stayed with the bone: 1,464 of the 4,748 IPC
+    points were on it, with exit 0. Every dim region reached from the spheres leads on now (soft tissue meets the bone
+    over too wide an area to link it): the bar is cut off the bone, and the IPC is the bone's."""
+    overrides = {**wide_bracket_overrides(61019), "noise_hu": 62.0}
+    volume, truth = make_family_ct(61019, "full", overrides=overrides)
+    image, score = run(volume, truth)
+    assert not score.refused and score.found == score.visible == 4 and score.false == 0
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 2000
+    assert image.segmentation.body is not None and image.segmentation.body.any()

@@ -14,7 +14,13 @@ import numpy as np
 from .bone_recognition import FINE_MAX_CELLS, MAX_CELLS, finer_grids_possible
 from .ct_segmentation import DEFAULT_THRESHOLD_HU, bone_surface, reference_body_spheres, threshold_ct, with_bone
 from .ipc_self_check import describe as describe_spheres_in_surface
-from .ipc_self_check import describe_unfound, solid_body_taken_for_bone, spheres_in_surface, unfound_spheres_in_surface
+from .ipc_self_check import (
+    describe_unfound,
+    solid_body_taken_for_bone,
+    solid_under_surface,
+    spheres_in_surface,
+    unfound_spheres_in_surface,
+)
 from .marker_spheres import detect_marker_spheres, label_sphere_voxels, usable_spheres
 
 logger = logging.getLogger(__name__)
@@ -86,9 +92,10 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
         ValueError: a bad threshold, or no voxel above it.
         NoBoneSurface: no object in the CT that is plausibly bone, none of its surface away from metal, a bone
             without a cortex that is solid beside marker spheres (or, with none found, dimmer on its rim than
-            inside), or a surface that holds the reference body's marker spheres (those found, or, with none paired
-            or tied, two balls of their size at the tool's distances: ``ipc_self_check``; the message says what was
-            found); it holds the marker spheres found.
+            inside), a bone with a cortex whose surface left for the IPC has none under it (a bar joined to it:
+            ``ipc_self_check.solid_under_surface``), or a surface that holds the reference body's marker spheres
+            (those found, or, with none paired or tied, two balls of their size at the tool's distances:
+            ``ipc_self_check``; the message says what was found); it holds the marker spheres found.
     """
     report = progress or (lambda step, done, total: None)
     seconds = {}
@@ -142,7 +149,9 @@ def _bone_and_surface(volume, segmentation, detection, tool_markers, fill_caviti
         surface = bone_surface(volume, segmentation, fill_cavities=fill_cavities)
     except ValueError as error:  # the spheres found are the user's all the same
         raise NoBoneSurface(str(error), detection) from error
-    solid = solid_body_taken_for_bone(volume, segmentation, detection.spheres)
+    solid = solid_body_taken_for_bone(volume, segmentation, detection.spheres) or solid_under_surface(
+        volume, segmentation, surface.points
+    )
     if solid:
         raise NoBoneSurface(solid, detection)
     on_spheres = spheres_in_surface(surface.points, body_spheres)

@@ -425,7 +425,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
             vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
     # Down the gradient of the surfaced image, from the bone to what is outside it: where the checks below look.
-    down = _downhill(image, vertices_ijk, volume.spacing)
+    down = downhill(image, vertices_ijk, volume.spacing)
     original = segmentation.smoothed[box]  # the CT as it was, denoised
     # A part about as bright as the surface level, joined to the bone (a dim bracket resting on it), has a surface
     # at that level too, with no cortex under it. Only at a cortex's edge: at the threshold, and on voxels that blur
@@ -742,7 +742,7 @@ def _vertex_areas(points, triangles):
 
 def _facing_inward(vertices, down, mask, spacing):
     """(M,) booleans: iso-surface vertices (M, 3) (indices in ``mask``'s box) whose dimmer side, INNER_WALL_MM away
-    ``down`` the gradient ((M, 3) unit vectors, ``_downhill``), lies in the bone's ``mask`` (its voxels above the
+    ``down`` the gradient ((M, 3) unit vectors, ``downhill``), lies in the bone's ``mask`` (its voxels above the
     threshold and its filled inside)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
     # Past the box's side the bone goes on where the field of view cuts it (else the box ends beyond the bone).
@@ -751,14 +751,14 @@ def _facing_inward(vertices, down, mask, spacing):
 
 
 def _on_a_dim_stub(original, vertices, down, level, threshold, spacing):
-    """(M,) booleans: iso-surface vertices (M, 3) on a dim part's stub, ``down`` ((M, 3), ``_downhill``) the gradient
+    """(M,) booleans: iso-surface vertices (M, 3) on a dim part's stub, ``down`` ((M, 3), ``downhill``) the gradient
     of the image surfaced (the CT with what is not the bone's wiped): where the CT as it was (``original``) is still
     at or above ``level`` INNER_WALL_MM (at least a voxel) down the gradient (the surface only closes off what was
     wiped), or where nothing reaches the threshold within LOCAL_INSIDE_MM up it (no cortex under the surface: the
     stub's sides)."""
     reach = max(INNER_WALL_MM, float(spacing.max()))
     outside = ndimage.map_coordinates(original, (vertices + reach * down / spacing).T, order=1, mode="nearest")
-    peak = _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
+    peak = along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
     return (outside >= level) | (peak < threshold)
 
 
@@ -810,7 +810,7 @@ CORNER_EDGE_FREE_MM = 1.0
 
 def _across_surface(original, vertices, down, spacing):
     """The CT (``original``, the denoised HU) across the surface at vertices (M, 3) (indices in it), ``down`` ((M, 3),
-    ``_downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
+    ``downhill``) the way out of the bone: the brightest value within LOCAL_INSIDE_MM up the gradient (the cortex's
     peak, ``_peak_under``) and what the bone touches (``_beyond``), (M,) HU each."""
     return _peak_under(original, vertices, down, spacing), _beyond(original, vertices, down, spacing)
 
@@ -818,16 +818,16 @@ def _across_surface(original, vertices, down, spacing):
 def _peak_under(original, vertices, down, spacing):
     """(M,) HU: the cortex's peak under vertices (M, 3), the brightest value of the CT (``original``) within
     LOCAL_INSIDE_MM up the gradient (``down``, (M, 3))."""
-    return _along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
+    return along_gradient(original, vertices, down, spacing, _UP_TO_THE_PEAK_MM).max(axis=0)
 
 
 def _beyond(original, vertices, down, spacing):
     """(M,) HU: what the bone touches at vertices (M, 3), the median of the CT (``original``) LOCAL_OUTSIDE_MM down
     the gradient (``down``, (M, 3))."""
-    return np.median(_along_gradient(original, vertices, down, spacing, _BEYOND_MM), axis=0)
+    return np.median(along_gradient(original, vertices, down, spacing, _BEYOND_MM), axis=0)
 
 
-def _along_gradient(original, vertices, down, spacing, distances, start=0.0):
+def along_gradient(original, vertices, down, spacing, distances, start=0.0):
     """(D, M): the CT (``original``) at ``distances`` (mm; negative: up the gradient, into the bone) from vertices
     (M, 3) along ``down`` ((M, 3)), counted from ``start`` (mm along it: a number, or (M,) one per vertex)."""
     start = np.reshape(start, (-1, 1))
@@ -875,7 +875,7 @@ def _without_cortex(original, vertices, down, level, spacing, contrast):
     without a cortex can be, whatever lies beyond it (the CT's lowest value at worst): a cortex under the point rules
     it out."""
     cortex, touches = contrast
-    under = _along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
+    under = along_gradient(original, vertices, down, spacing, [-t for t in UNDER_MM]).max(axis=0)
     cortex_rise = cortex - level
     dim = under < level + DIM_PEAK_SHARE * cortex_rise
     below_corner = under < level + CORNER_PEAK_SHARE * cortex_rise
@@ -934,7 +934,7 @@ def _to_own_half_max(original, vertices, down, level, spacing, touches, walls):
     at, way = vertices[candidates], down[candidates]
     own = 0.5 * (_peak_under(original, at, way, spacing) + beyond[candidates])
     depths = np.arange(0.0, OWN_HALF_MAX_REACH_MM + 1e-6, OWN_HALF_MAX_STEP_MM)
-    profile = _along_gradient(original, at, way, spacing, -depths)  # (D, C), into the bone
+    profile = along_gradient(original, at, way, spacing, -depths)  # (D, C), into the bone
     reached = profile >= own
     first = reached.argmax(axis=0)
     movable = (own > level) & reached.any(axis=0) & (first > 0)
@@ -984,10 +984,10 @@ def _local_half_max(image, vertices, spacing):
     took the air's edge for what a right ilium's 1.8 mm cortex under 3 mm of tissue touches: its surface lay 0.42 mm
     out (median), 83 % of the IPC within 0.5 mm of the bone (family seed 41008; 77 % at 62 HU of noise, now 99.9 %)."""
     points = vertices[:: max(1, len(vertices) // LOCAL_SAMPLES)]
-    out = _downhill(image, points, spacing)
+    out = downhill(image, points, spacing)
     peak, edge, at_edge, fall = _cortex_edge(image, points, out, spacing)
     outside = np.arange(LOCAL_OUTSIDE_MM[0], LOCAL_OUTSIDE_MM[1] + 1e-6, LOCAL_STEP_MM)
-    beyond = np.median(_along_gradient(image, points, out, spacing, outside, edge), axis=0)
+    beyond = np.median(along_gradient(image, points, out, spacing, outside, edge), axis=0)
     crossing = (peak - beyond >= CORTEX_CONTRAST_HU) & (beyond > BELOW_AIR_HU)
     if crossing.sum() < 100:
         return None
@@ -995,12 +995,12 @@ def _local_half_max(image, vertices, spacing):
 
 
 def _cortex_edge(image, points, out, spacing):
-    """Across the cortex at points (M, 3) (indices in ``image``) along ``out`` ((M, 3), ``_downhill``): its peak (M,)
+    """Across the cortex at points (M, 3) (indices in ``image``) along ``out`` ((M, 3), ``downhill``): its peak (M,)
     HU, the brightest value within LOCAL_INSIDE_MM inside; its edge (M,) mm from the points, the steepest fall
     between the peak and LOCAL_EDGE_BEYOND_MM beyond the point (between samples LOCAL_STEP_MM apart, placed on the
     parabola through the falls either side); the CT at the edge (M,) HU; and the steepest fall (M,) HU/mm."""
     along = np.arange(-LOCAL_INSIDE_MM, LOCAL_EDGE_BEYOND_MM + 1e-6, LOCAL_STEP_MM)
-    profile = _along_gradient(image, points, out, spacing, along)  # (D, M)
+    profile = along_gradient(image, points, out, spacing, along)  # (D, M)
     columns = np.arange(len(points))
     peak_at = np.argmax(np.where(along[:, None] <= 0.0, profile, -np.inf), axis=0)
     fall = np.diff(profile, axis=0)  # (D - 1, M): from sample i to i + 1, half-way between them
@@ -1018,7 +1018,7 @@ def _cortex_edge(image, points, out, spacing):
     return profile[peak_at, columns], along[0] + at * LOCAL_STEP_MM, at_edge, -middle / LOCAL_STEP_MM
 
 
-def _downhill(image, vertices, spacing):
+def downhill(image, vertices, spacing):
     """(M, 3) unit vectors down the image's gradient at vertices (M, 3) (indices in ``image``), in mm along the grid's
     axes (central differences of its trilinear values a voxel either side): from the bone to what is outside it."""
     steps = [partial(_difference_along, image, vertices, step) for step in np.eye(3)]

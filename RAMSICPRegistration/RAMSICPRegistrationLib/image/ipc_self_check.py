@@ -23,8 +23,19 @@ the coverage above), two or more at one of the tool's pairwise marker distances 
 plate brighter than they are stand out of it as caps on both sides, the object's outer surface (family seed 40192
 with wide brackets: its IPC was the plate's, 23,454 of its 23,688 points on the body, exit 0). A bone has no two
 round ends of the marker's radius at one of the tool's distances.
+
+The object taken for bone may have a cortex and still give an IPC that is not the bone's: a bar or bracket joined
+to it (one object, which no cut parted) keeps its surface where the bone's own is left out, next to a pin's metal,
+on inner walls, at the field of view's edge (fresh wide seed 61018 at 62 HU of noise: a 16.4 mm square bar of
+1,000 HU inserted into a long bone's end, 9.3 cm^3 of it in view with a pin in it; the object's rim was +670 HU on
+its inside, and 11,467 of the 11,469 IPC points were on the bar, with exit 0). So the cortex is read again under the
+IPC itself (``solid_under_surface``): across each sampled point, the CT's mean ``RIM_UNDER_MM`` in (the cortex)
+against its mean ``INSIDE_UNDER_MM`` in (a thick cortex's far part and the marrow or cancellous bone beyond it; a
+bar's own inside). A bone's rim is brighter than that: the family's bones by 290 HU and more at the median over their
+IPC points (a tibia's shaft with a 7 mm cortex, as a real one has, by 700 HU: the test's), 61018's bar by -40 HU.
 """
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,9 +43,12 @@ from scipy.spatial import cKDTree
 
 from ..core.marker_geometry import at_pairwise_distances
 from ..io.ndi_tools import MARKER_DIAMETER_MM
-from .bone_recognition import SOLID_MAX_VOXEL_MM, is_solid
+from .bone_recognition import SOLID_CONTRAST_HU, SOLID_MAX_VOXEL_MM, is_solid
+from .ct_segmentation import along_gradient, downhill
 from .marker_spheres import direction_coverage
 from .surface_balls import find_balls
+
+logger = logging.getLogger(__name__)
 
 #: IPC points within this distance (mm) of a sphere's shell (|p - c| - r) are on its surface.
 SHELL_MM = 1.5
@@ -54,6 +68,21 @@ SPHERE_REACH_MM = 35.0
 #: bone, exit 0). 16078's star frame: -172 HU. A flat bone whose cancellous inside is nearly as bright as its cortex
 #: keeps a rim brighter than it (18066: +48 HU).
 RIM_DIMMER_HU = 0.0
+
+
+#: The cortex under an IPC point: the CT's mean this far in (mm, from and to) ...
+RIM_UNDER_MM = (0.5, 2.5)
+#: ... against its mean this far in (mm): past a cortex 10 mm thick (a femur's shaft, at its thickest), the marrow
+#: or cancellous bone is in the mean; a bar 12 mm across and more is itself all through it.
+INSIDE_UNDER_MM = (3.0, 12.0)
+#: ... read every this many mm, at up to this many of the IPC's points.
+UNDER_STEP_MM = 0.5
+UNDER_SAMPLES = 4000
+#: The IPC is over solid material when that contrast (its median) is below ``bone_recognition.SOLID_CONTRAST_HU`` and
+#: below this share of the object's own rim contrast: read across the surface, a bone's is about half of its object's
+#: or more (family seed 12017: 158 HU against its object's 353 HU, a cortex dimmer than most; 61018's bar: -32 HU
+#: against 670 HU), and a bone whose object is barely above a cortex (CORTEX_CONTRAST_HU) is not refused for it.
+UNDER_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -172,3 +201,50 @@ def _distance_to_object(volume, segmentation, label, spheres):
         return float("inf")
     centres = np.array([sphere.centre for sphere in spheres]).reshape(-1, 3)
     return float(cKDTree(volume.ijk_to_ras_points(voxels)).query(centres)[0].min())
+
+
+def cortex_under(image, vertices, spacing):
+    """(M,) HU: the cortex under surface points, vertices (M, 3) (fractional indices in ``image``, a denoised CT of
+    voxels ``spacing`` (3,) mm): the image's mean RIM_UNDER_MM in along its gradient (up it: into the bone) less its
+    mean INSIDE_UNDER_MM in, each read every UNDER_STEP_MM. A tube of cortex 7 mm thick round marrow: 8.5 of the
+    inside's 19 samples are cortex, so the rim is brighter by 10.5/19 of the cortex's rise over the marrow; a solid
+    bar: 0."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    inward = -downhill(image, vertices, spacing)
+    rim, inside = (
+        along_gradient(image, vertices, inward, spacing, np.arange(low, high + 1e-6, UNDER_STEP_MM)).mean(axis=0)
+        for low, high in (RIM_UNDER_MM, INSIDE_UNDER_MM)
+    )
+    return rim - inside
+
+
+def solid_under_surface(volume, segmentation, points):
+    """The refusal's words when the IPC ``points`` (N, 3) RAS mm lie over solid material though the object taken for
+    bone has a cortex (the module docstring): the median of ``cortex_under`` over up to UNDER_SAMPLES of them, in
+    the segmentation's denoised CT, is below ``bone_recognition.SOLID_CONTRAST_HU`` and below UNDER_SHARE of the
+    object's rim contrast. None otherwise, in voxels coarser than SOLID_MAX_VOXEL_MM (they blur a cortex away), and
+    when the object has no cortex (``solid_body_taken_for_bone`` reads that one)."""
+    recognition = segmentation.recognition
+    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6 or not len(points):
+        return None
+    verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
+    if verdict is None or verdict.verdict != "bone":
+        return None
+    points = np.asarray(points, dtype=np.float64)[:: max(1, len(points) // UNDER_SAMPLES)]
+    vertices = volume.ras_to_ijk_points(points) - segmentation.origin
+    contrast = float(np.median(cortex_under(segmentation.smoothed, vertices, volume.spacing)))
+    logger.debug(
+        "the cortex under the IPC: %+.0f HU over %d points (its object's rim: %+.0f HU)",
+        contrast,
+        len(points),
+        verdict.cortex_hu,
+    )
+    if not is_solid(contrast, min(SOLID_CONTRAST_HU, UNDER_SHARE * verdict.cortex_hu)):
+        return None
+    return (
+        f"the object taken for bone ({verdict.describe()}) has a cortex, but the surface left of it for the IPC (the "
+        f"rest lies next to metal, on inner walls or at the field of view's edge) has none: its rim is {contrast:+.0f} "
+        f"HU on what lies {INSIDE_UNDER_MM[0]:.0f}-{INSIDE_UNDER_MM[1]:.0f} mm under it (the median over "
+        f"{len(points):,} of its points), a solid part's, the reference body's bracket joined to the bone; no IPC is "
+        "written: scan the bone with the pin or bracket out of the field of view, or segment the bone by hand"
+    )
