@@ -32,7 +32,8 @@ its inside, and 11,467 of the 11,469 IPC points were on the bar, with exit 0). S
 IPC itself (``solid_under_surface``): across each sampled point, the CT's mean ``RIM_UNDER_MM`` in (the cortex)
 against its mean ``INSIDE_UNDER_MM`` in (a thick cortex's far part and the marrow or cancellous bone beyond it; a
 bar's own inside). A bone's rim is brighter than that by a share of its object's rim contrast (``UNDER_SHARE``; a
-tibia's shaft with a 7 mm cortex, as a real one has, by 413 HU: the test's); 61018's bar's is dimmer, by 33 HU.
+family long bone given a 6.75 mm cortex, as a real shaft has, by 413 HU, a tube with a 7 mm cortex by 788-816 HU:
+the tests'); 61018's bar's is dimmer, by 33 HU.
 """
 
 import logging
@@ -82,8 +83,10 @@ UNDER_SAMPLES = 4000
 #: below this share of the object's own rim contrast. A solid part's is at or below 0 (its rim's first samples lie in
 #: the blur of its edge; 61018's bar: -33 HU against the object's +670 HU). A bone's, read across a surface where a
 #: thin cortex is blurred into a bright inside, can be a small share of its object's: +34 and +36 HU against +192 and
-#: +215 HU in family seeds 12041 and 12078 (flat bones with 1.3 mm of cortex round cancellous bone 280 HU dimmer), the
-#: lowest of 500 CTs; at 0.25 of it, 12078 was refused with 38 cm^3 of bone in view.
+#: +215 HU in family seeds 12041 and 12078 (flat bones with 1.3-1.9 mm of cortex round cancellous bone 280-290 HU
+#: dimmer), the lowest of 700 family CTs (the 500 of the table, 120 wide at 62 HU of noise, 80 fresh) among those
+#: whose object's rim is under 750 HU (above it, SOLID_CONTRAST_HU is the lower limit); at 0.25 of it, 12078 was
+#: refused with 38 cm^3 of bone in view and 12041, looked at again on finer grids, kept 986 of its 40,720 points.
 UNDER_SHARE = 0.1
 
 
