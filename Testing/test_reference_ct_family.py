@@ -1273,3 +1273,15 @@ def test_a_bar_held_by_a_plastic_plate_larger_than_the_soft_tissue_size_is_linke
     assert not score.refused and score.found == score.visible == 4 and score.false == 0
     assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 2000
     assert image.segmentation.body is not None and image.segmentation.body.any()
+
+
+def test_a_rod_dimmer_than_the_cortex_resting_on_the_bone_is_left_out_of_the_ipc():
+    """Fresh wide seed 57010 at 62 HU of noise: a 9 mm round rod of 875 HU resting on a fibula whose cortex is
+    1,543 HU, its frame cut off: no opening parts a rod as thick as the bone, and under that noise no level follows
+    it, so 2,241 of the 7,042 IPC points were on it, exit 0. Under the rod's surface the CT has no cortex, solid 3-6 mm
+    in and dimmer than the bone's (``solid_patches``): measured, 1,849 of them left out, 392 left (where it meets the
+    bone), none of the bone's 4,801 lost, 94.9 % of the bone covered as before."""
+    volume, truth = make_family_ct(57010, "full", overrides={**wide_bracket_overrides(57010), "noise_hu": 62.0})
+    _, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_bone >= 4800 and score.coverage > 0.94
+    assert score.ipc_on_body < 0.1 * score.ipc_points

@@ -22,6 +22,7 @@ from .ipc_self_check import (
     unfound_spheres_in_surface,
 )
 from .marker_spheres import detect_marker_spheres, label_sphere_voxels, usable_spheres
+from .solid_patches import without_solid_patches
 
 logger = logging.getLogger(__name__)
 
@@ -142,7 +143,8 @@ def process_ct(volume, threshold_hu=DEFAULT_THRESHOLD_HU, fill_cavities=True, to
 
 def _bone_and_surface(volume, segmentation, detection, tool_markers, fill_cavities, max_cells=MAX_CELLS):
     """(segmentation with its bone, BoneSurface): the bone recognised on grids of at most ``max_cells`` cells, its
-    surface, and the IPC's checks against the reference body (``ipc_self_check``); raises NoBoneSurface."""
+    surface, and the IPC's checks against the reference body (``ipc_self_check``); raises NoBoneSurface. Patches over
+    a solid part dimmer than the cortex (a rod resting on the bone) are left out last (``solid_patches``)."""
     body_spheres = reference_body_spheres(detection)
     try:
         segmentation = _with_bone(volume, segmentation, detection, body_spheres, max_cells)
@@ -161,7 +163,7 @@ def _bone_and_surface(volume, segmentation, detection, tool_markers, fill_caviti
         unfound = unfound_spheres_in_surface(surface.points, surface.triangles, tool_markers)
         if unfound:  # ... nor one that holds spheres no look at the CT found (sunk into a brighter plate)
             raise NoBoneSurface(describe_unfound(unfound), detection)
-    return segmentation, surface
+    return segmentation, without_solid_patches(volume, segmentation, surface)
 
 
 def _with_bone(volume, segmentation, detection, body_spheres, max_cells=MAX_CELLS):
