@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from RAMSICPRegistrationLib.image.bone_recognition import BoneRecognition, ObjectVerdict
 from RAMSICPRegistrationLib.image.ct_segmentation import BoneSurface
 from RAMSICPRegistrationLib.image.iso_surface import iso_surface
 from RAMSICPRegistrationLib.image.solid_patches import _in_patches, without_solid_patches
@@ -31,10 +32,9 @@ def _bone_and_rod(inner_radius_mm, rod_hu, cortex_hu=1500.0):
     volume = CTVolume(image, np.diag([SPACING, SPACING, SPACING, 1.0]))
     vertices, triangles = iso_surface(image, 750.0)
     points = volume.ijk_to_ras_points(vertices)
-    bone = types.SimpleNamespace(label=1, verdict="bone")
-    segmentation = types.SimpleNamespace(
-        smoothed=image, origin=np.zeros(3, int), recognition=types.SimpleNamespace(objects=[bone], label=1)
-    )
+    bone = ObjectVerdict(1, 10_000.0, 10.0, 800.0, 0, "bone")  # the bone's verdict: a cortex
+    recognition = BoneRecognition(1, None, 0.0, (bone,))
+    segmentation = types.SimpleNamespace(smoothed=image, origin=np.zeros(3, int), recognition=recognition)
     return volume, segmentation, BoneSurface(points, triangles), points[:, :2] - [20.0, 17.5]
 
 

@@ -131,7 +131,7 @@ def run(arguments):
             where += ", but a sphere there is cut by its edge"
         print(f"{f'marker {missing.number}':<17}not found; the other markers put it at ({centre}), {where}")
     recognition = segmentation.recognition
-    bone = next(verdict for verdict in recognition.objects if verdict.label == recognition.label)
+    bone = recognition.verdict
     print(
         f"bone             {bone.describe()}"
         + (

@@ -222,6 +222,11 @@ class BoneRecognition:
     has_cortex: bool = True
     body_followed: np.ndarray = None
 
+    @property
+    def verdict(self):
+        """The bone's ObjectVerdict (None when it is not among ``objects``)."""
+        return next((verdict for verdict in self.objects if verdict.label == self.label), None)
+
 
 def recognise_bone(volume, segmentation, spheres, spheres_sure=True, max_cells=MAX_CELLS):
     """Recognise the bone among a segmentation's objects (see the module docstring).

@@ -422,7 +422,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if by_other is not None:  # the surface in a gap of a voxel or two to another object is not the bone's
         between = dilate(by_other)[tuple(np.rint(vertices_ijk).astype(int).T)]
         if between.any():
-            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, between)
+            vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, between)
             logger.info("%d IPC points in a gap to another object left out", int(between.sum()))
     # Down the gradient of the surfaced image, from the bone to what is outside it: where the checks below look.
     down = downhill(image, vertices_ijk, volume.spacing)
@@ -505,7 +505,7 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if corner.any():
         logger.info("%d IPC points in the corner a dim part makes with the bone left out", int(corner.sum()))
     if (dim | inner | corner).any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, dim | inner | corner)
+        vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, dim | inner | corner)
     # Where the field of view cuts the bone, the blur of the scan and of the denoising runs into its edge: the
     # surface within PADDING_MARGIN_MM of the volume's sides or of the padding is not the bone's.
     in_ct = vertices_ijk + segmentation.origin + low
@@ -514,14 +514,14 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if padding is not None:
         capped |= _near_padding(padding, vertices_ijk, volume.spacing)
     if capped.any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, capped)
+        vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, capped)
         logger.info("%d IPC points at the edge of the field of view left out", int(capped.sum()))
     origin = segmentation.origin + low  # the crop's first voxel in the CT
     spoilt = metal.contains_ijk(vertices_ijk + origin) if leave_out_metal else np.zeros(len(vertices_ijk), bool)
     if joined is not None and joined.any():
         spoilt |= _within(joined, vertices_ijk, volume.spacing, JOINED_MARGIN_VOXELS * float(volume.spacing.max()))
     if spoilt.any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, spoilt)
+        vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, spoilt)
         logger.info("%d bone-surface points next to metal left out", int(spoilt.sum()))
     if len(vertices_ijk) == 0:
         raise ValueError("all of the bone's surface lies next to metal; no IPC can be taken from this CT")
@@ -529,13 +529,13 @@ def bone_surface(volume, segmentation, fill_cavities=True, level="half-max", lea
     if cut_off.any():
         at_base = _within(cut_off, vertices_ijk, volume.spacing, CUT_BASE_MM)
         if at_base.any():
-            vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, at_base)
+            vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, at_base)
             logger.info("%d IPC points round the base of a wire or stub cut off the bone left out", int(at_base.sum()))
     by_body = _next_to_body(volume, segmentation, vertices_ijk + low)
     if line is not None:
         by_body |= line.contains(vertices_ijk * volume.spacing)
     if by_body.any():
-        vertices_ijk, triangles = _without_vertices(vertices_ijk, triangles, by_body)
+        vertices_ijk, triangles = without_vertices(vertices_ijk, triangles, by_body)
         logger.info("%d bone-surface points next to the reference body's bracket left out", int(by_body.sum()))
     if len(vertices_ijk) == 0:
         raise ValueError(
@@ -716,7 +716,7 @@ def _inner_walls(vertices, triangles, down, dim, bone_and_inside, spacing, fine)
         # bracket, 6 before), and the dim part beside a wall is no mouth (14007: with it, the mouth was too large to
         # be a hole's, and 23 points on the bracket stayed, 3 before).
         beside = dim & ~inner
-        kept, kept_triangles = _without_vertices(vertices, triangles, beside)
+        kept, kept_triangles = without_vertices(vertices, triangles, beside)
         inner[~beside] |= _mouths(kept, kept_triangles, inner[~beside], down[~beside], spacing)
     return inner
 
@@ -1251,7 +1251,7 @@ def _near(points_ijk, others_ijk, spacing, reach):
     return np.isfinite(distance)
 
 
-def _without_vertices(vertices, triangles, drop):
+def without_vertices(vertices, triangles, drop):
     """A mesh without the vertices flagged in ``drop`` (M,) and the triangles that use them, re-indexed."""
     keep = ~drop
     new_index = np.cumsum(keep) - 1

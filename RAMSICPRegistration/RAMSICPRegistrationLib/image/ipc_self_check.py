@@ -173,22 +173,28 @@ def describe(found):
     )
 
 
+def bone_verdict_in_fine_voxels(volume, segmentation):
+    """The ``bone_recognition.ObjectVerdict`` of the object taken for bone when the voxels resolve a cortex
+    (``SOLID_MAX_VOXEL_MM`` or finer); None in coarser ones, or with no recognition."""
+    recognition = segmentation.recognition
+    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
+        return None
+    return recognition.verdict
+
+
 def solid_body_taken_for_bone(volume, segmentation, spheres):
     """The refusal's words when the object taken for bone has no cortex and is solid (``is_solid``) in voxels of
     ``SOLID_MAX_VOXEL_MM`` or finer, beside marker ``spheres`` (any found), or with its rim dimmer than its inside
     (``RIM_DIMMER_HU``) when none is found: the reference body's frame or bracket. None otherwise (a bone with a
     cortex, coarse voxels that blur a cortex away, a solid object far from the spheres)."""
-    recognition = segmentation.recognition
-    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6:
-        return None
-    verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
+    verdict = bone_verdict_in_fine_voxels(volume, segmentation)
     if verdict is None or verdict.verdict != "bone without a cortex" or not is_solid(verdict.cortex_hu):
         return None
     if not len(spheres):
         if verdict.cortex_hu >= -RIM_DIMMER_HU:
             return None
         beside = "dimmer on its rim than inside, which no bone is, and no marker sphere was found"
-    elif _distance_to_object(volume, segmentation, recognition.label, spheres) > SPHERE_REACH_MM:
+    elif _distance_to_object(volume, segmentation, verdict.label, spheres) > SPHERE_REACH_MM:
         return None
     else:
         beside = f"beside {len(spheres)} marker sphere(s) found"
@@ -229,11 +235,8 @@ def solid_under_surface(volume, segmentation, points):
     the segmentation's denoised CT, is below ``bone_recognition.SOLID_CONTRAST_HU`` and below UNDER_SHARE of the
     object's rim contrast. None otherwise, in voxels coarser than SOLID_MAX_VOXEL_MM (they blur a cortex away), and
     when the object has no cortex (``solid_body_taken_for_bone`` reads that one)."""
-    recognition = segmentation.recognition
-    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6 or not len(points):
-        return None
-    verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
-    if verdict is None or verdict.verdict != "bone":
+    verdict = bone_verdict_in_fine_voxels(volume, segmentation)
+    if verdict is None or verdict.verdict != "bone" or not len(points):
         return None
     points = np.asarray(points, dtype=np.float64)[:: max(1, len(points) // UNDER_SAMPLES)]
     vertices = volume.ras_to_ijk_points(points) - segmentation.origin

@@ -19,8 +19,8 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from .bone_recognition import SOLID_MAX_VOXEL_MM
-from .ct_segmentation import along_gradient, downhill
+from .ct_segmentation import along_gradient, downhill, without_vertices
+from .ipc_self_check import bone_verdict_in_fine_voxels
 
 logger = logging.getLogger(__name__)
 
@@ -46,12 +46,9 @@ def without_solid_patches(volume, segmentation, surface):
     (the module docstring), read in the segmentation's denoised CT. Unchanged in voxels coarser than
     ``bone_recognition.SOLID_MAX_VOXEL_MM`` (they blur a cortex away), when the object taken for bone has no cortex,
     and when no sampled point is such a point."""
-    recognition = segmentation.recognition
     points = surface.points
-    if recognition is None or volume.spacing.max() > SOLID_MAX_VOXEL_MM + 1e-6 or len(points) < MIN_PATCH_POINTS:
-        return surface
-    verdict = next((v for v in recognition.objects if v.label == recognition.label), None)
-    if verdict is None or verdict.verdict != "bone":
+    verdict = bone_verdict_in_fine_voxels(volume, segmentation)
+    if verdict is None or verdict.verdict != "bone" or len(points) < MIN_PATCH_POINTS:
         return surface
     every = max(1, len(points) // SAMPLES)
     level, peak, inside = _across(volume, segmentation, points[::every])
@@ -69,10 +66,8 @@ def without_solid_patches(volume, segmentation, surface):
         cortex,
         level,
     )
-    keep = ~drop
-    new_index = np.cumsum(keep) - 1
-    triangles = new_index[surface.triangles[keep[surface.triangles].all(axis=1)]]
-    return replace(surface, points=points[keep], triangles=triangles)
+    points, triangles = without_vertices(points, surface.triangles, drop)
+    return replace(surface, points=points, triangles=triangles)
 
 
 def _across(volume, segmentation, points):
