@@ -1285,3 +1285,31 @@ def test_a_rod_dimmer_than_the_cortex_resting_on_the_bone_is_left_out_of_the_ipc
     _, score = run(volume, truth)
     assert not score.refused and score.ipc_on_bone >= 4800 and score.coverage > 0.94
     assert score.ipc_on_body < 0.1 * score.ipc_points
+
+
+@pytest.mark.parametrize("seed, noise_hu, covered", [(62035, 62.0, 0.93), (51047, None, 0.89)])
+def test_a_bracket_no_opening_parts_from_the_bone_is_taken_off_whole_as_the_solid_part_it_is(seed, noise_hu, covered):
+    """No sphere says where the body is (all cut by the field of view, or hidden), and the object is the bone with a
+    solid bracket resting on it: fresh wide seed 62035 at 62 HU of noise, a 14 mm rod of 527 HU on a long bone 17.6 mm
+    thick (cortex 773 HU); wide seed 51047, a 7.7 mm bar of 1,251 HU on a flat bone 8.6 mm thick. The bracket is found
+    as a solid part, but the bone's core is within its reach at every opening and no plateau is read across the cut:
+    both were refused, with 24.9 and 26 cm^3 of bone in view. The solid part taken off whole leaves the bone (measured:
+    12,267 and 9,274 IPC points, all on the bone, 94.5 and 90.8 % of it covered)."""
+    overrides = wide_bracket_overrides(seed)
+    if noise_hu is not None:
+        overrides["noise_hu"] = noise_hu
+    volume, truth = make_family_ct(seed, "full", overrides=overrides)
+    image, score = run(volume, truth)
+    assert not score.refused and score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 5000
+    assert score.coverage >= covered
+    assert image.segmentation.body is not None and image.segmentation.body.any()
+
+
+def test_the_thin_pieces_of_a_frame_are_not_taken_off_whole_leaving_the_rest_of_it_for_the_bone():
+    """Family seed 59001: a 1,345 HU plate with its plastic spheres sunk into it (none found) and an 8.5 mm bracket of
+    465 HU inserted into a long bone. Its solid parts are three 4 mm bars of the plate, found at an opening of 2 mm;
+    taken off whole, they left the plate with the bone, and its surface was the IPC (31,115 points, none on the bone).
+    Only parts 5.5 mm thick or more are taken off so: no IPC point is the plate's (the CT is refused, as before)."""
+    volume, truth = make_family_ct(59001, "full")
+    _, score = run(volume, truth)
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points

@@ -22,10 +22,12 @@ bracket that fixes it (the paper inserts an extending bracket into the porcine i
    into what the cut kept (``body_material``: a bracket's or a frame's inside is a plateau of one brightness that
    goes on across the cut; a bone's inside is one too, but its cortex surrounds it), and where no opening parts
    them at all, from the body's seeds (or, where none is seen, its solid parts) into an object that looks like bone
-   as a whole; the small pieces its plateaus split off the bone (posts of another material) go with it. Where the
-   body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a bracket's
-   round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a cortex round
-   its inside on the body's side (for tied spheres: larger than the bone kept) is no cut.
+   as a whole; the small pieces its plateaus split off the bone (posts of another material) go with it. Where no
+   sphere says where the body is and neither an opening nor a plateau parts a solid part at least 5.5 mm thick from
+   the bone (a bracket resting on a bone nearly as thick), the part is taken off whole (``without_solid_parts``).
+   Where the body's seeds may lie in the bone (spheres only tied by the tool's distances, one of them perhaps a
+   bracket's round end in the marrow; a dim part that leads on into the bone), a cut that leaves a piece with a
+   cortex round its inside on the body's side (for tied spheres: larger than the bone kept) is no cut.
 3. **Plausibly bone:** at least ``MIN_BONE_MM3`` (cavities filled), at least ``MIN_HALF_THICKNESS_MM`` from its
    surface somewhere, and a **cortex**: its rim brighter than its inside by ``CORTEX_CONTRAST_HU`` (marrow or
    cancellous bone inside a cortical shell; a rod, plate or block of one material has a rim no brighter than its
@@ -122,6 +124,12 @@ SOLID_MAX_VOXEL_MM = 1.0
 #: cortex wall's, whose rim and inside are the same cortex (family seed 13116: 204 mm^3 of a tibia's 2.7 mm cortex of
 #: 848 HU, rim -7 HU on its inside, was set apart, 13 points of the bone's coverage lost).
 SOLID_GROWN_MIN_OPENING_MM = 2.0
+#: The solid parts are taken off the bone whole, where no opening parts them (``_ObjectShape.without_solid_parts``),
+#: only when found at this opening (mm) or more: parts at least 5.5 mm thick, a bracket. Thinner ones are the pieces
+#: of a frame, and the rest of the body stays with the bone when they go (family seed 59001: three 4 mm bars of a
+#: 1,345 HU plate, its plastic spheres sunk into it; the plate kept with the bone, and its surface was the IPC, 31,115
+#: points, none on the bone). The brackets so taken off were found at 2.75-7 mm (62035, 41013, 51047, 60021, 45026).
+WHOLE_PART_MIN_OPENING_MM = 2.75
 #: The largest cores an opening leaves that are weighed, and the cells of a solid one that seed the body.
 MAX_CORES = 4
 SOLID_SEEDS = 40
@@ -359,6 +367,8 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
                 verdict, bone = shape.cut_off_body(solid, no_more_bone_on_body=True)
                 if bone is None:
                     verdict, bone = shape.followed_from_seeds(solid, no_bone_on_body=True) or (verdict, bone)
+                if bone is None:  # no opening parts them and nothing to follow: the solid parts taken off whole
+                    verdict, bone = shape.without_solid_parts(solid) or (verdict, bone)
             elif unseen and verdict.verdict.startswith("bone") and shape.filled_mm3 >= 2.0 * MIN_BONE_MM3:
                 # No sphere says where the body is and no opening splits a solid part off: a frame thinner than
                 # the bracket that joins it (32007: a 5 mm plate round its spheres on a 6.9 mm bracket inserted into
@@ -934,6 +944,29 @@ class _ObjectShape:
             return None
         logger.info("reference body followed by its material from its seeds, no opening parting it from the bone")
         return verdict, followed
+
+    def without_solid_parts(self, seeds):
+        """(ObjectVerdict, _Cut) or None: the object without its solid parts (``seeds``: ``solid_parts``, cells of
+        their cores, each reaching as far as the opening that found it), where no opening parts them from the bone
+        and no plateau is followed: a bracket resting on a bone nearly as thick, the bone's core within the part's
+        reach at every opening (fresh wide seed 62035 at 62 HU of noise: a 14 mm rod of 527 HU on a long bone 17.6 mm
+        thick whose cortex is 773 HU; the object refused with 24.9 cm^3 of bone in view). The largest piece left must
+        be bone with a cortex, and what goes with the parts no bone-like piece (``_takes_bone``). Only parts found at
+        an opening of WHOLE_PART_MIN_OPENING_MM or more: a bracket, not the thin pieces of a frame."""
+        if min(reach for _, reach in seeds) < WHOLE_PART_MIN_OPENING_MM:
+            return None
+        near = self._within_reach_of(seeds, float(self.cell.max()))
+        pieces, count = ndimage.label(self.filled & ~near)
+        if count == 0:
+            return None
+        sizes = np.bincount(pieces.ravel())
+        sizes[0] = 0
+        bone = pieces == sizes.argmax()
+        verdict = self.verdict(0, bone, self._depth_of(bone))
+        if verdict.verdict != "bone" or self._takes_bone(self.filled & ~bone, bone, True, False):
+            return None
+        logger.info("the solid parts taken off the bone whole: no opening parts them")
+        return verdict, _Cut(bone, self._stub_margin_mm(0.0), 0.0)
 
     def _follow_body_material(self, cut):
         """The ``cut`` with the body followed by its material into the bone it kept (``body_material``; a bracket
