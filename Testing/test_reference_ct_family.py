@@ -1313,3 +1313,14 @@ def test_the_thin_pieces_of_a_frame_are_not_taken_off_whole_leaving_the_rest_of_
     volume, truth = make_family_ct(59001, "full")
     _, score = run(volume, truth)
     assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points
+
+
+def test_a_body_object_the_spheres_miss_is_not_taken_for_bone_less_its_solid_parts():
+    """Wide seed 55023: three spheres found on 1,592 HU posts and a 321 HU star frame, a flat bone beside them. An
+    object of the body's that the spheres' seeds miss has solid parts; taken off whole, they left the rest larger than
+    the bone, and its surface was the IPC (8,671 points, none on the bone, exit 0). Where spheres say where the body
+    is, solid parts are not taken off whole: the IPC is the bone's, as before (15,729 points, all on it)."""
+    volume, truth = make_family_ct(55023, "full", overrides=wide_bracket_overrides(55023))
+    _, score = run(volume, truth)
+    assert not score.refused and score.found == score.visible == 3
+    assert score.ipc_on_body == 0 and score.ipc_on_bone == score.ipc_points > 10000

@@ -367,7 +367,11 @@ def _recognise(volume, segmentation, held, census, reached=(), unsure=()):
                 verdict, bone = shape.cut_off_body(solid, no_more_bone_on_body=True)
                 if bone is None:
                     verdict, bone = shape.followed_from_seeds(solid, no_bone_on_body=True) or (verdict, bone)
-                if bone is None:  # no opening parts them and nothing to follow: the solid parts taken off whole
+                if bone is None and unseen:  # no opening parts them, nothing to follow: the solid parts taken off whole
+                    # Only where no sphere, post or dim part says where the body is: where they do, an object of the
+                    # body's that they miss (a frame, its posts) is no bone less its solid parts (wide seed 55023: its
+                    # 1,592 HU posts and 321 HU frame so taken, larger than the flat bone beside them, were the IPC,
+                    # 8,671 points, none on the bone).
                     verdict, bone = shape.without_solid_parts(solid) or (verdict, bone)
             elif unseen and verdict.verdict.startswith("bone") and shape.filled_mm3 >= 2.0 * MIN_BONE_MM3:
                 # No sphere says where the body is and no opening splits a solid part off: a frame thinner than
