@@ -49,7 +49,15 @@ from scipy import ndimage
 from ..io.ndi_tools import MARKER_DIAMETER_MM
 from .body_material import BAND_HU, NOISY_HU, averaged_means, levels_among, means_noise_hu, plateau_from_nearest
 from .components import boxes_and_sizes
-from .morphology import block_max, dilate, dilate_by_cube, open_by_cube, reaching_no_side, unblock
+from .morphology import (
+    block_max,
+    dilate,
+    dilate_by_cube,
+    largest_piece,
+    open_by_cube,
+    reaching_no_side,
+    unblock,
+)
 from .parallel import in_parallel
 from .plugs import PLUG_MM, between_sides, closed_holes, inside_pieces
 from .sphere_candidates import block_means
@@ -959,13 +967,9 @@ class _ObjectShape:
         an opening of WHOLE_PART_MIN_OPENING_MM or more: a bracket, not the thin pieces of a frame."""
         if min(reach for _, reach in seeds) < WHOLE_PART_MIN_OPENING_MM:
             return None
-        near = self._within_reach_of(seeds, float(self.cell.max()))
-        pieces, count = ndimage.label(self.filled & ~near)
-        if count == 0:
+        bone = largest_piece(self.filled & ~self._within_reach_of(seeds, float(self.cell.max())))
+        if not bone.any():
             return None
-        sizes = np.bincount(pieces.ravel())
-        sizes[0] = 0
-        bone = pieces == sizes.argmax()
         verdict = self.verdict(0, bone, self._depth_of(bone))
         if verdict.verdict != "bone" or self._takes_bone(self.filled & ~bone, bone, True, False):
             return None

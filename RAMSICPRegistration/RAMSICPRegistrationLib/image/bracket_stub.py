@@ -15,7 +15,7 @@ import copy
 import numpy as np
 from scipy import ndimage
 
-from .morphology import VoxelGraph, bounding_box, dilate
+from .morphology import VoxelGraph, bounding_box, dilate, largest_piece
 
 #: The bracket's end is read off the body's voxels within this far (mm) of the bone.
 END_MM = 8.0
@@ -187,15 +187,6 @@ def _opened(depth, radius, spacing):
     return ndimage.distance_transform_edt(~core, sampling=spacing) <= radius
 
 
-def _largest_piece(mask):
-    """The largest connected piece of a boolean array: the bracket's end on the side it comes from, not its tip
-    where it goes through a flat bone and out of its far side (family seed 12023: 149 IPC points on that tip)."""
-    labels, count = ndimage.label(mask)
-    if count <= 1:
-        return mask
-    return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
-
-
 def bracket_line_beyond(mask, body, low, spacing, image=None):
     """``bracket_line`` read on the body beyond the bone's box too: ``mask`` the bone over its box, which starts
     at voxel ``low`` (3,) of ``body`` (the reference body's booleans over a larger box; ``image`` the CT over that
@@ -246,7 +237,9 @@ def _line_from(meeting, mask, spacing, image):
     crop = tuple(slice(a, b) for a, b in zip(low, high))
     thin = np.zeros_like(near)
     thin[crop] = near[crop] & ~_opened(meeting.depth[crop], radius + MARGIN_MM, spacing)
-    end = _largest_piece(thin if thin.any() else near)
+    # Its largest piece: the bracket's end on the side it comes from, not its tip where it goes through a flat bone
+    # and out of its far side (family seed 12023: 149 IPC points on that tip).
+    end = largest_piece(thin if thin.any() else near)
     positions = (np.argwhere(end) + meeting.low) * spacing
     to_bone = meeting.to_bone[end]
     centre = positions.mean(axis=0)

@@ -129,6 +129,15 @@ def unblock(cells, block, shape):
     return cells[: shape[0], : shape[1], : shape[2]]
 
 
+def largest_piece(mask):
+    """The largest connected piece (``ndimage.label``'s, along the grid's axes) of a boolean array; the array itself
+    when it has one piece or none."""
+    labels, count = ndimage.label(mask)
+    if count <= 1:
+        return mask
+    return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
+
+
 def labelled(labels, chosen):
     """Booleans of ``labels``'s shape: the voxels whose label (from ``ndimage.label``) is one of ``chosen``; 0 (the
     background) never. A look-up table: ``np.isin`` sorts, twice as slow on a bone's box."""
